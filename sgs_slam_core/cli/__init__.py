@@ -1,0 +1,40 @@
+"""``sgs-slam``: the offline command line. Library errors become one line on stderr and exit 1."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from sgs_slam_core.cli import demo
+from sgs_slam_core.errors import SgsSlamError
+
+__all__ = ["main"]
+
+_COMMANDS = (demo,)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser with one sub-command per module in this package."""
+    parser = argparse.ArgumentParser(prog="sgs-slam", description="Semantic Gaussian-splatting SLAM, offline tools.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for module in _COMMANDS:
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``sgs-slam`` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except SgsSlamError as err:
+        print(f"sgs-slam: error: {err}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("sgs-slam: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,31 @@
+"""Camera model and rigid-body maths."""
+
+from sgs_slam_core.geometry.camera import Intrinsics, backproject, pixel_grid
+from sgs_slam_core.geometry.se3 import (
+    quat_multiply,
+    quat_normalize,
+    quat_to_rotmat,
+    rotmat_to_quat,
+    se3_exp,
+    se3_from_rt,
+    se3_inverse,
+    so3_exp,
+    so3_log,
+    transform_points,
+)
+
+__all__ = [
+    "Intrinsics",
+    "backproject",
+    "pixel_grid",
+    "quat_multiply",
+    "quat_normalize",
+    "quat_to_rotmat",
+    "rotmat_to_quat",
+    "se3_exp",
+    "se3_from_rt",
+    "se3_inverse",
+    "so3_exp",
+    "so3_log",
+    "transform_points",
+]

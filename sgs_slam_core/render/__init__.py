@@ -1,0 +1,6 @@
+"""Differentiable multi-channel Gaussian renderer (torch reference backend, optional gsplat)."""
+
+from sgs_slam_core.render.api import CameraGaussians, RenderOutput, render, resolve_backend, to_camera
+from sgs_slam_core.render.settings import BackendName, RenderSettings
+
+__all__ = ["BackendName", "CameraGaussians", "RenderOutput", "RenderSettings", "render", "resolve_backend", "to_camera"]

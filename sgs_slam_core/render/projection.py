@@ -1,0 +1,93 @@
+"""EWA projection of camera-frame 3D Gaussians to 2D image-plane Gaussians (differentiable)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.render.settings import RenderSettings
+
+__all__ = ["Projection", "project_gaussians"]
+
+
+@dataclass
+class Projection:
+    """2D footprints of N Gaussians in one camera.
+
+    ``radii`` is 0 for culled Gaussians (behind the near plane, transparent, or off-screen is decided
+    later by tiling); it carries no gradient.
+    """
+
+    means2d: Tensor  # [N, 2] pixel coordinates (u, v)
+    conics: Tensor  # [N, 3] inverse 2D covariance (A, B, C): q = A dx^2 + 2 B dx dy + C dy^2
+    depths: Tensor  # [N] camera-frame z of the centres (m)
+    opacities: Tensor  # [N] in [0, 1]
+    radii: Tensor  # [N] footprint radius in pixels (no grad)
+
+
+def project_gaussians(
+    means_cam: Tensor,  # [N, 3] camera frame
+    opacities: Tensor,  # [N] in [0, 1]
+    intrinsics: Intrinsics,
+    settings: RenderSettings,
+    scales: Tensor | None = None,  # [N] isotropic standard deviation (m)
+    covars_cam: Tensor | None = None,  # [N, 3, 3] camera-frame covariance (anisotropic)
+) -> Projection:
+    """Project with the local affine (EWA) approximation used by 3DGS.
+
+    Exactly one of ``scales`` (isotropic: the covariance s^2 I needs no rotation) and ``covars_cam``
+    must be given. The Jacobian's x/z, y/z are clamped to 1.3x the field of view, as in 3DGS/gsplat,
+    so Gaussians far outside the image do not get huge footprints.
+    """
+    if (scales is None) == (covars_cam is None):
+        raise ValueError("give exactly one of scales and covars_cam")
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    x, y, z = means_cam.unbind(-1)
+    in_front = z > settings.near_plane
+    z_safe = torch.where(in_front, z, torch.ones_like(z))
+    x_over_z, y_over_z = x / z_safe, y / z_safe
+    u = fx * x_over_z + cx
+    v = fy * y_over_z + cy
+
+    tan_x, tan_y = 0.5 * intrinsics.width / fx, 0.5 * intrinsics.height / fy
+    lim_x_lo, lim_x_hi = -(cx + 0.5) / fx - 0.3 * tan_x, (intrinsics.width - cx - 0.5) / fx + 0.3 * tan_x
+    lim_y_lo, lim_y_hi = -(cy + 0.5) / fy - 0.3 * tan_y, (intrinsics.height - cy - 0.5) / fy + 0.3 * tan_y
+    tx = x_over_z.clamp(lim_x_lo, lim_x_hi)
+    ty = y_over_z.clamp(lim_y_lo, lim_y_hi)
+    inv_z = 1.0 / z_safe
+    if scales is not None:
+        # J J^T s^2 with J = [[fx/z, 0, -fx tx/z], [0, fy/z, -fy ty/z]].
+        s2 = (scales * inv_z) ** 2
+        a = s2 * fx * fx * (1 + tx * tx)
+        b = s2 * fx * fy * tx * ty
+        c = s2 * fy * fy * (1 + ty * ty)
+    else:
+        zero = torch.zeros_like(z)
+        jac = torch.stack([fx * inv_z, zero, -fx * tx * inv_z, zero, fy * inv_z, -fy * ty * inv_z], dim=-1).reshape(
+            -1, 2, 3
+        )
+        cov2d = jac @ covars_cam @ jac.transpose(1, 2)
+        a, b, c = cov2d[:, 0, 0], cov2d[:, 0, 1], cov2d[:, 1, 1]
+    a = a + settings.eps2d
+    c = c + settings.eps2d
+    det = (a * c - b * b).clamp_min(1e-12)
+    conics = torch.stack([c / det, -b / det, a / det], dim=-1)
+
+    with torch.no_grad():
+        lam_max = 0.5 * (a + c) + torch.sqrt((0.5 * (a - c)) ** 2 + b * b)
+        # Opacity-aware extent: beyond sqrt(2 ln(o / alpha_min)) sigma the alpha is below alpha_min.
+        ratio = (opacities / settings.alpha_min).clamp_min(1.0)
+        extent2 = torch.minimum(2 * torch.log(ratio), torch.full_like(ratio, settings.extent_sigma**2))
+        radii = torch.sqrt(extent2 * lam_max)
+        visible = in_front & (opacities >= settings.alpha_min) & torch.isfinite(radii)
+        radii = torch.where(visible, radii, torch.zeros_like(radii))
+    return Projection(
+        means2d=torch.stack([u, v], dim=-1),
+        conics=conics,
+        depths=z,
+        opacities=opacities,
+        radii=radii,
+    )

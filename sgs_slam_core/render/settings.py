@@ -1,0 +1,53 @@
+"""Renderer settings (the ``render`` section of the SLAM config)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from sgs_slam_core.errors import ConfigError
+
+__all__ = ["BackendName", "RenderSettings"]
+
+BackendName = Literal["auto", "torch", "gsplat"]
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Constants of the splatting model, shared by every backend.
+
+    Attributes:
+        backend: ``auto`` picks gsplat on CUDA tensors when it is installed, else ``torch``.
+        tile_size: tile side in pixels for the torch backend (8 is fastest on CPU).
+        near_plane: Gaussians with camera-frame z at or below this (m) are culled whole.
+        eps2d: isotropic dilation added to every 2D covariance (px^2), as 3DGS/gsplat.
+        alpha_max: per-Gaussian alpha clamp (0.99 as the reference rasterizer; gsplat uses 0.999).
+        alpha_min: alphas below this are skipped (1/255).
+        extent_sigma: footprint cut-off in standard deviations (3).
+        chunk_elements: pixel x Gaussian pairs evaluated per batch by the torch backend (memory knob).
+    """
+
+    backend: BackendName = "auto"
+    tile_size: int = 8
+    near_plane: float = 0.01
+    eps2d: float = 0.3
+    alpha_max: float = 0.99
+    alpha_min: float = 1.0 / 255.0
+    extent_sigma: float = 3.0
+    chunk_elements: int = 1 << 18
+
+    def __post_init__(self) -> None:
+        if self.backend not in ("auto", "torch", "gsplat"):
+            raise ConfigError(f"render.backend must be auto, torch or gsplat, got {self.backend!r}")
+        if not 1 <= self.tile_size <= 64:
+            raise ConfigError(f"render.tile_size must be in [1, 64], got {self.tile_size}")
+        if not self.near_plane > 0:
+            raise ConfigError(f"render.near_plane must be > 0, got {self.near_plane}")
+        if self.eps2d < 0:
+            raise ConfigError(f"render.eps2d must be >= 0, got {self.eps2d}")
+        if not 0 < self.alpha_min < self.alpha_max < 1:
+            raise ConfigError(f"need 0 < alpha_min < alpha_max < 1, got {self.alpha_min}, {self.alpha_max}")
+        if not 0 < self.extent_sigma <= 10:
+            raise ConfigError(f"render.extent_sigma must be in (0, 10], got {self.extent_sigma}")
+        if self.chunk_elements < 1024:
+            raise ConfigError(f"render.chunk_elements must be >= 1024, got {self.chunk_elements}")

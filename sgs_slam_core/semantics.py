@@ -1,0 +1,106 @@
+"""Semantic channel encodings: label images <-> per-pixel semantic features.
+
+Two modes (DESIGN.md):
+
+* ``color`` - paper-faithful: S = 3, the target is the class's palette colour in [0, 1]; decoding
+  snaps a rendered colour to the nearest class colour.
+* ``onehot`` - S = K: channel k is the probability of class id k; decoding is an argmax.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+from torch import Tensor
+
+from sgs_slam_core.errors import ConfigError, FrameError, ShapeError
+from sgs_slam_core.labels import LabelTable
+
+__all__ = ["SemanticCodec", "SemanticMode", "SemanticSettings"]
+
+SemanticMode = Literal["color", "onehot"]
+
+
+@dataclass(frozen=True)
+class SemanticSettings:
+    """The ``semantic`` config section.
+
+    Attributes:
+        mode: ``color`` (S = 3) or ``onehot`` (S = num_classes).
+        num_classes: one-hot channels, covering class ids 0 .. num_classes - 1 (ignored in colour mode).
+    """
+
+    mode: SemanticMode = "color"
+    num_classes: int = 41
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("color", "onehot"):
+            raise ConfigError(f"semantic.mode must be color or onehot, got {self.mode!r}")
+        if self.mode == "onehot" and not 2 <= self.num_classes <= 512:
+            raise ConfigError(f"semantic.num_classes must be in [2, 512] for onehot, got {self.num_classes}")
+
+
+class SemanticCodec:
+    """Encodes label ids to semantic targets and decodes rendered semantics to ids."""
+
+    def __init__(self, settings: SemanticSettings, table: LabelTable) -> None:
+        self.settings = settings
+        self.table = table
+
+    @property
+    def mode(self) -> SemanticMode:
+        """``color`` or ``onehot``."""
+        return self.settings.mode
+
+    @property
+    def num_channels(self) -> int:
+        """S, the semantic channels per Gaussian and pixel."""
+        return 3 if self.mode == "color" else self.settings.num_classes
+
+    def with_table(self, table: LabelTable) -> SemanticCodec:
+        """The same encoding with another label table (e.g. grown by newly seen ids)."""
+        return SemanticCodec(self.settings, table)
+
+    def class_colors(self, ids: Sequence[int], device: torch.device | str = "cpu") -> Tensor:  # [C, 3]
+        """Palette colours of ``ids`` in [0, 1]."""
+        return torch.tensor([self.table.color_of(i) for i in ids], dtype=torch.float32, device=device) / 255.0
+
+    def encode(self, labels: Tensor) -> Tensor:  # [...] int64 -> [..., S] float32
+        """Semantic targets of a label image."""
+        if labels.dtype not in (torch.int16, torch.int32, torch.int64, torch.uint8):
+            raise ShapeError(f"labels must be an integer tensor, got {labels.dtype}")
+        labels = labels.long()
+        if self.mode == "onehot":
+            k = self.settings.num_classes
+            if labels.numel() and int(labels.max()) >= k:
+                raise FrameError(f"class id {int(labels.max())} >= semantic.num_classes={k}; raise num_classes")
+            return torch.nn.functional.one_hot(labels, k).to(torch.float32)
+        ids, inverse = torch.unique(labels, return_inverse=True)
+        return self.class_colors(ids.tolist(), labels.device)[inverse]
+
+    def decode(self, semantic: Tensor, candidates: Sequence[int] | None = None) -> Tensor:  # [..., S] -> [...]
+        """Class ids: nearest candidate colour (colour mode) or argmax over candidates (one-hot).
+
+        ``candidates`` restricts the answer to these ids (the paper's protocol snaps to the ids present
+        in the frame's ground truth); by default every id of the table (colour mode) or every channel.
+        """
+        if semantic.shape[-1] != self.num_channels:
+            raise ShapeError(f"semantic has {semantic.shape[-1]} channels, codec expects {self.num_channels}")
+        flat = semantic.detach().reshape(-1, self.num_channels).float()
+        if self.mode == "onehot":
+            if candidates is None:
+                return flat.argmax(dim=1).reshape(semantic.shape[:-1])
+            ids = torch.tensor(sorted(set(candidates)), dtype=torch.long, device=semantic.device)
+            return ids[flat[:, ids].argmax(dim=1)].reshape(semantic.shape[:-1])
+        ids_list = sorted(set(self.table.ids if candidates is None else candidates))
+        ids = torch.tensor(ids_list, dtype=torch.long, device=semantic.device)
+        palette = self.class_colors(ids_list, semantic.device)
+        out = torch.empty(flat.shape[0], dtype=torch.long, device=semantic.device)
+        step = 1 << 16  # bound the [pixels, classes] distance matrix
+        for begin in range(0, flat.shape[0], step):
+            dist = torch.cdist(flat[begin : begin + step], palette)
+            out[begin : begin + step] = ids[dist.argmin(dim=1)]
+        return out.reshape(semantic.shape[:-1])

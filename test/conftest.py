@@ -1,0 +1,26 @@
+"""Shared fixtures. DDS discovery is confined to this machine before anything can import rclpy."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def shared_data_dir() -> Path:
+    """``$SGS_SLAM_DATA`` or the workspace's ``../shared/data``."""
+    return Path(os.environ.get("SGS_SLAM_DATA", REPO.parent / "shared" / "data"))
+
+
+@pytest.fixture
+def tum_teddy() -> Path:
+    """The real TUM fr3/teddy sample (200 frames); skipped with a reason when absent."""
+    path = shared_data_dir() / "tum_fr3_teddy"
+    if not (path / "rgb.txt").is_file():
+        pytest.skip(f"real TUM sample not found at {path} (set SGS_SLAM_DATA to the folder holding tum_fr3_teddy)")
+    return path

@@ -1,0 +1,74 @@
+from dataclasses import dataclass, field
+from typing import Literal
+
+import pytest
+
+from sgs_slam_core.config import SlamConfig, build, config_to_dict, dump_yaml, list_presets, load_config
+from sgs_slam_core.config.loader import load_yaml, parse_override
+from sgs_slam_core.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Inner:
+    rate: float = 1.0
+    name: Literal["a", "b"] = "a"
+    sizes: tuple[int, int] = (1, 2)
+
+
+@dataclass(frozen=True)
+class Outer:
+    inner: Inner = field(default_factory=Inner)
+    count: int = 3
+    flag: bool = False
+    note: str | None = None
+
+
+def test_build_nested_and_types():
+    cfg = build(Outer, {"inner": {"rate": 2, "sizes": [3, 4]}, "flag": True})
+    assert cfg.inner.rate == 2.0 and isinstance(cfg.inner.rate, float)
+    assert cfg.inner.sizes == (3, 4) and cfg.flag is True and cfg.count == 3
+    assert config_to_dict(cfg)["inner"]["sizes"] == [3, 4]
+
+
+@pytest.mark.parametrize(
+    ("data", "match"),
+    [
+        ({"inner": {"rat": 1}}, "unknown config key inner.rat"),
+        ({"bogus": 1}, "unknown config key bogus"),
+        ({"count": 1.5}, "count: expected an integer"),
+        ({"flag": 1}, "flag: expected true/false"),
+        ({"inner": {"name": "c"}}, r"inner.name: must be one of \['a', 'b'\]"),
+        ({"inner": {"sizes": [1]}}, "expected 2 values"),
+        ({"inner": 3}, "expected a mapping"),
+    ],
+)
+def test_build_rejects_bad_input(data, match):
+    with pytest.raises(ConfigError, match=match):
+        build(Outer, data)
+
+
+def test_presets_load_and_overrides_apply(tmp_path):
+    assert {"replica", "scannet", "tum", "synthetic"} <= set(list_presets())
+    for name in list_presets():
+        assert isinstance(load_config(name), SlamConfig)
+    path = tmp_path / "c.yaml"
+    path.write_text("render:\n  tile_size: 16\n")
+    cfg = load_config("scannet", path, ["render.eps2d=0.5", "seed=7"])
+    assert cfg.render.tile_size == 16 and cfg.render.eps2d == 0.5 and cfg.seed == 7
+    dump_yaml(cfg, tmp_path / "out.yaml")
+    assert load_config(path=tmp_path / "out.yaml") == cfg
+
+
+def test_range_errors_and_bad_overrides(tmp_path):
+    with pytest.raises(ConfigError, match="tile_size"):
+        load_config(overrides=["render.tile_size=0"])
+    with pytest.raises(ConfigError, match="unknown preset 'nope'"):
+        load_config("nope")
+    with pytest.raises(ConfigError, match="section\\.key=value"):
+        parse_override("justakey")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("- a list\n")
+    with pytest.raises(ConfigError, match="mapping at the top level"):
+        load_yaml(bad)
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_yaml(tmp_path / "missing.yaml")

@@ -1,0 +1,64 @@
+import numpy as np
+import pytest
+import torch
+
+from sgs_slam_core.errors import FrameError, ShapeError
+from sgs_slam_core.labels import LabelClass, LabelError, LabelTable, palette_color
+from sgs_slam_core.semantics import SemanticCodec, SemanticSettings
+
+
+def test_nyu40_table():
+    t = LabelTable.nyu40()
+    assert len(t) == 41
+    assert t.name_of(1) == "wall" and t.color_of(1) == (174, 199, 232)
+    assert t.name_of(5) == "chair" and t.color_of(5) == (188, 189, 34)
+    assert t.id_of("otherprop") == 40 and t.id_of("7") == 7
+    assert t.color_of(0) == (0, 0, 0)
+    with pytest.raises(LabelError, match="unknown class name 'unicorn'"):
+        t.id_of("unicorn")
+
+
+def test_palette_is_deterministic_and_distinct():
+    colors = [palette_color(i) for i in range(256)]
+    assert colors[0] == (0, 0, 0) and colors[1] == (128, 0, 0)
+    assert len(set(colors)) == 256
+    assert palette_color(300) == palette_color(300)
+    t = LabelTable.nyu40()
+    assert t.color_of(1000) == palette_color(1000)
+
+
+def test_colorize_and_dict_round_trip():
+    t = LabelTable([LabelClass(3, "chair", (1, 2, 3))], name="mine")
+    img = t.colorize(np.array([[0, 3], [3, 7]]))
+    assert img.dtype == np.uint8 and img.shape == (2, 2, 3)
+    assert tuple(img[0, 1]) == (1, 2, 3) and tuple(img[1, 1]) == palette_color(7)
+    assert LabelTable.from_dict(t.to_dict()) == t
+    assert 7 in t.with_ids([7, 3]) and 7 not in t
+    with pytest.raises(LabelError, match=r"0\.\.255"):
+        LabelTable([LabelClass(2, "bad", (300, 0, 0))])
+
+
+@pytest.mark.parametrize("mode", ["color", "onehot"])
+def test_codec_round_trip(mode):
+    table = LabelTable.nyu40()
+    codec = SemanticCodec(SemanticSettings(mode=mode, num_classes=41), table)
+    labels = torch.tensor([[0, 1, 5], [40, 7, 7]])
+    enc = codec.encode(labels)
+    assert enc.shape == (2, 3, codec.num_channels)
+    assert torch.equal(codec.decode(enc), labels)
+    noisy = enc + 0.02 * torch.randn(enc.shape, generator=torch.Generator().manual_seed(0))
+    assert torch.equal(codec.decode(noisy), labels)
+
+
+def test_codec_candidates_and_errors():
+    codec = SemanticCodec(SemanticSettings(mode="onehot", num_classes=4), LabelTable.from_ids(range(4)))
+    sem = torch.tensor([[0.1, 0.5, 0.3, 0.1]])
+    assert codec.decode(sem).item() == 1
+    assert codec.decode(sem, candidates=[0, 2]).item() == 2
+    with pytest.raises(FrameError, match="num_classes"):
+        codec.encode(torch.tensor([4]))
+    with pytest.raises(ShapeError, match="channels"):
+        codec.decode(torch.zeros(2, 3))
+    color = SemanticCodec(SemanticSettings(), LabelTable.nyu40())
+    mid = (color.class_colors([1]) + 0.01).reshape(1, 3)
+    assert color.decode(mid, candidates=[1, 2]).item() == 1
