@@ -6,12 +6,12 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from sgs_slam_core.cli import demo
+from sgs_slam_core.cli import demo, synth
 from sgs_slam_core.errors import SgsSlamError
 
 __all__ = ["main"]
 
-_COMMANDS = (demo,)
+_COMMANDS = (synth, demo)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,114 @@
+"""Image metrics on ``[H, W, C]`` tensors in [0, 1]: PSNR, SSIM, MS-SSIM, depth L1.
+
+:func:`ssim` is differentiable and also serves as the mapping loss's SSIM term (with
+``padding="same"``, as 3DGS/SplaTAM); as a metric it uses the standard "valid" window
+(scikit-image / pytorch_msssim convention).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import torch
+import torch.nn.functional as nn_f
+from torch import Tensor
+
+from sgs_slam_core.errors import ShapeError
+
+__all__ = ["MS_SSIM_WEIGHTS", "depth_l1", "ms_ssim", "psnr", "ssim"]
+
+MS_SSIM_WEIGHTS = (0.0448, 0.2856, 0.3001, 0.2363, 0.1333)
+_C1, _C2 = 0.01**2, 0.03**2
+
+
+def _check_pair(pred: Tensor, gt: Tensor) -> None:
+    if pred.shape != gt.shape:
+        raise ShapeError(f"prediction {tuple(pred.shape)} and ground truth {tuple(gt.shape)} differ")
+    if pred.ndim != 3:
+        raise ShapeError(f"images must be [H, W, C], got {tuple(pred.shape)}")
+
+
+def psnr(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
+    """PSNR (dB, data range 1). With ``mask [H, W]`` the MSE is taken over the masked pixels only."""
+    _check_pair(pred, gt)
+    err = (pred.detach().float() - gt.float()) ** 2
+    if mask is not None:
+        if mask.shape != pred.shape[:2]:
+            raise ShapeError(f"mask {tuple(mask.shape)} does not match image {tuple(pred.shape[:2])}")
+        if not bool(mask.any()):
+            return float("nan")
+        mse = err[mask.bool()].mean()
+    else:
+        mse = err.mean()
+    return float("inf") if mse.item() == 0 else float(-10 * torch.log10(mse))
+
+
+def _gaussian_window(size: int, sigma: float, channels: int, like: Tensor) -> Tensor:  # [C, 1, size, size]
+    x = torch.arange(size, dtype=like.dtype, device=like.device) - (size - 1) / 2
+    g = torch.exp(-(x**2) / (2 * sigma**2))
+    g = g / g.sum()
+    return (g[:, None] * g[None, :]).expand(channels, 1, size, size).contiguous()
+
+
+def _ssim_maps(x: Tensor, y: Tensor, window: Tensor, pad: int) -> tuple[Tensor, Tensor]:  # [1, C, H', W'] each
+    c = x.shape[1]
+    mu_x = nn_f.conv2d(x, window, padding=pad, groups=c)
+    mu_y = nn_f.conv2d(y, window, padding=pad, groups=c)
+    sxx = nn_f.conv2d(x * x, window, padding=pad, groups=c) - mu_x**2
+    syy = nn_f.conv2d(y * y, window, padding=pad, groups=c) - mu_y**2
+    sxy = nn_f.conv2d(x * y, window, padding=pad, groups=c) - mu_x * mu_y
+    cs = (2 * sxy + _C2) / (sxx + syy + _C2)
+    lum = (2 * mu_x * mu_y + _C1) / (mu_x**2 + mu_y**2 + _C1)
+    return lum * cs, cs
+
+
+def ssim(
+    pred: Tensor,  # [H, W, C]
+    gt: Tensor,  # [H, W, C]
+    window: int = 11,
+    sigma: float = 1.5,
+    padding: Literal["valid", "same"] = "valid",
+) -> Tensor:
+    """Mean single-scale SSIM (Gaussian window, C1 = 0.01^2, C2 = 0.03^2); differentiable."""
+    _check_pair(pred, gt)
+    if padding == "valid" and min(pred.shape[:2]) < window:
+        raise ShapeError(f"image {tuple(pred.shape[:2])} is smaller than the {window}px SSIM window")
+    x, y = pred.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None]
+    w = _gaussian_window(window, sigma, x.shape[1], x)
+    ssim_map, _ = _ssim_maps(x, y, w, window // 2 if padding == "same" else 0)
+    return ssim_map.mean()
+
+
+def ms_ssim(pred: Tensor, gt: Tensor, window: int = 11, sigma: float = 1.5) -> float:
+    """Multi-scale SSIM (Wang et al. 2003; pytorch_msssim's definition, which SplaTAM reports as "SSIM").
+
+    Uses the standard five scales when the shorter side exceeds 160 px; smaller images use as many
+    scales as fit, with the weights renormalised (documented deviation).
+    """
+    _check_pair(pred, gt)
+    short = min(pred.shape[:2])
+    if short < window:
+        raise ShapeError(f"image {tuple(pred.shape[:2])} is smaller than the {window}px SSIM window")
+    levels = min(5, 1 + math.floor(math.log2(short / window)))  # each level halves the image
+    weights = torch.tensor(MS_SSIM_WEIGHTS[:levels], dtype=torch.float64)
+    weights = weights / weights.sum()
+    x, y = pred.detach().float().permute(2, 0, 1)[None], gt.float().permute(2, 0, 1)[None]
+    w = _gaussian_window(window, sigma, x.shape[1], x)
+    values = []
+    for level in range(levels):
+        ssim_map, cs = _ssim_maps(x, y, w, 0)
+        values.append((ssim_map if level == levels - 1 else cs).mean(dim=(2, 3)).clamp_min(0).mean())
+        if level < levels - 1:
+            x, y = nn_f.avg_pool2d(x, 2), nn_f.avg_pool2d(y, 2)
+    return float(torch.prod(torch.stack(values).double() ** weights))
+
+
+def depth_l1(pred: Tensor, gt: Tensor) -> float:
+    """Mean |pred - gt| (m) over pixels with ground-truth depth > 0."""
+    if pred.shape != gt.shape or pred.ndim != 2:
+        raise ShapeError(f"depth maps must both be [H, W], got {tuple(pred.shape)} and {tuple(gt.shape)}")
+    valid = gt > 0
+    if not bool(valid.any()):
+        return float("nan")
+    return float((pred.detach()[valid] - gt[valid]).abs().mean())
