@@ -24,3 +24,15 @@ def tum_teddy() -> Path:
     if not (path / "rgb.txt").is_file():
         pytest.skip(f"real TUM sample not found at {path} (set SGS_SLAM_DATA to the folder holding tum_fr3_teddy)")
     return path
+
+
+@pytest.fixture(scope="session")
+def tiny_scene(tmp_path_factory) -> Path:
+    """The ``tiny`` synthetic sequence (64x48, 12 frames), generated once per test session."""
+    from sgs_slam_core.synthetic import generate, preset_config
+
+    return generate(tmp_path_factory.mktemp("scenes") / "tiny", preset_config("tiny"))
+
+
+# CI-sized SLAM settings for the tiny scene (the accuracy targets are checked by benchmarks).
+FAST_SLAM = ("tracking.iterations=30", "mapping.iterations=15")

@@ -58,12 +58,10 @@ def read_tum_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return np.array(stamps, dtype=np.int64), poses
 
 
-def _panel(
-    est: np.ndarray, gt: np.ndarray | None, axes: tuple[int, int], flip: tuple[bool, bool], title: str
-) -> np.ndarray:
+def _panel(est: np.ndarray, gt: np.ndarray | None, axes: np.ndarray, title: str) -> np.ndarray:
     size, margin = 420, 40
     img = np.full((size, size, 3), 255, np.uint8)
-    pts = [p[:, axes] * np.where(flip, -1, 1) for p in (est, gt) if p is not None]
+    pts = [p @ axes.T for p in (est, gt) if p is not None]  # axes: [2, 3] projection rows
     allp = np.concatenate(pts)
     lo, hi = allp.min(0), allp.max(0)
     span = max(float((hi - lo).max()), 1e-6)
@@ -86,15 +84,18 @@ def _panel(
 
 
 def plot_trajectories(path: str | Path, est_c2w: np.ndarray, gt_c2w: np.ndarray | None = None, title: str = "") -> None:
-    """PNG with a top view (x-z) and a side view (x-y, y up) of camera centres.
+    """PNG with two views of the camera centres along the trajectory's principal axes.
 
-    The estimate is drawn in blue, the (aligned) ground truth in black, and per-frame errors as thin
-    red segments. Frames are the optical convention of the world (y down, z forward).
+    "Top" shows the plane of the two directions of largest spread, "side" the first against the
+    least-spread direction, whatever the world frame's convention. The estimate is drawn in blue,
+    the (aligned) ground truth in black and per-frame errors as thin red segments.
     """
     est = np.asarray(est_c2w)[:, :3, 3]
     gt = np.asarray(gt_c2w)[:, :3, 3] if gt_c2w is not None else None
-    top = _panel(est, gt, (0, 2), (False, False), "top view (x right, z up the page)")
-    side = _panel(est, gt, (0, 1), (False, True), "side view (x right, -y up)")
+    ref = gt if gt is not None else est
+    _, _, vt = np.linalg.svd(ref - ref.mean(0), full_matrices=True)  # rows: principal directions
+    top = _panel(est, gt, vt[[0, 1]], "top view (principal axes 1 and 2)")
+    side = _panel(est, gt, vt[[0, 2]], "side view (principal axes 1 and 3)")
     header = np.full((34, top.shape[1] * 2, 3), 255, np.uint8)
     legend = (
         f"{title}   blue: estimate   black: ground truth   red: error"

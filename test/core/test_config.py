@@ -55,6 +55,7 @@ def test_presets_load_and_overrides_apply(tmp_path):
     path.write_text("render:\n  tile_size: 16\n")
     cfg = load_config("scannet", path, ["render.eps2d=0.5", "seed=7"])
     assert cfg.render.tile_size == 16 and cfg.render.eps2d == 0.5 and cfg.seed == 7
+    assert load_config(overrides=["render.eps2d=1e-3"]).render.eps2d == 0.001  # YAML 1.1 reads 1e-3 as text
     dump_yaml(cfg, tmp_path / "out.yaml")
     assert load_config(path=tmp_path / "out.yaml") == cfg
 

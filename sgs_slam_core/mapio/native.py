@@ -1,0 +1,95 @@
+"""The native map file: everything needed to resume mapping, written atomically and validated on load.
+
+Contents (a ``torch.save`` dict, loadable with ``weights_only=True``): format tag and version, the
+Gaussian tensors, the label table, the resolved config, the intrinsics, the keyframe poses and the
+estimated trajectory.
+"""
+
+from __future__ import annotations
+
+import pickle
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from sgs_slam_core.errors import MapFileError, ShapeError
+from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.labels import LabelError, LabelTable
+from sgs_slam_core.mapio.atomic import atomic_write
+
+__all__ = ["FORMAT", "VERSION", "MapFile", "load_map", "save_map"]
+
+FORMAT = "sgs-slam-map"
+VERSION = 1
+_REQUIRED = ("format", "version", "gaussians", "label_table", "config", "intrinsics", "keyframes", "trajectory")
+
+
+@dataclass
+class MapFile:
+    """A saved map and its context."""
+
+    gaussians: GaussianMap
+    label_table: LabelTable
+    config: dict[str, Any] = field(default_factory=dict)  # resolved SlamConfig as plain data
+    intrinsics: Intrinsics | None = None
+    keyframes: list[tuple[int, np.ndarray]] = field(default_factory=list)  # (frame index, c2w [4, 4])
+    trajectory: list[tuple[int, int, np.ndarray]] = field(default_factory=list)  # (input frame index, stamp_ns, c2w)
+    seen_labels: list[int] = field(default_factory=list)  # class ids observed while mapping (decoding candidates)
+
+
+def _intrinsics_dict(k: Intrinsics | None) -> dict[str, float] | None:
+    if k is None:
+        return None
+    return {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width, "height": k.height}
+
+
+def save_map(path: str | Path, m: MapFile) -> None:
+    """Write ``m`` to ``path`` atomically (a crash leaves any previous file intact)."""
+    payload = {
+        "format": FORMAT,
+        "version": VERSION,
+        "gaussians": m.gaussians.state_dict(),
+        "label_table": m.label_table.to_dict(),
+        "config": m.config,
+        "intrinsics": _intrinsics_dict(m.intrinsics),
+        "keyframes": [[int(i), torch.as_tensor(p, dtype=torch.float64)] for i, p in m.keyframes],
+        "trajectory": [[int(i), int(s), torch.as_tensor(p, dtype=torch.float64)] for i, s, p in m.trajectory],
+        "seen_labels": [int(i) for i in m.seen_labels],
+    }
+    atomic_write(path, lambda f: torch.save(payload, f))
+
+
+def load_map(path: str | Path, device: torch.device | str = "cpu") -> MapFile:
+    """Read and validate a native map; every problem raises :class:`MapFileError` naming it."""
+    path = Path(path)
+    if not path.is_file():
+        raise MapFileError(f"map file {path} does not exist")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except (RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as err:
+        raise MapFileError(f"map file {path} is truncated or not a map ({type(err).__name__}: {err})") from err
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise MapFileError(f"{path} is not an SGS-SLAM map (format tag missing)")
+    if data.get("version") != VERSION:
+        raise MapFileError(f"{path}: map version {data.get('version')!r} is not supported (expected {VERSION})")
+    missing = [k for k in _REQUIRED if k not in data]
+    if missing:
+        raise MapFileError(f"{path}: missing fields {missing}")
+    try:
+        gaussians = GaussianMap.from_state_dict(data["gaussians"], device)
+        table = LabelTable.from_dict(data["label_table"])
+        k = Intrinsics(**data["intrinsics"]) if data["intrinsics"] else None
+        keyframes = [(int(i), p.numpy()) for i, p in data["keyframes"]]
+        trajectory = [(int(i), int(s), p.numpy()) for i, s, p in data["trajectory"]]
+        seen = [int(i) for i in data.get("seen_labels", [])]
+    except (ShapeError, LabelError, TypeError, ValueError, AttributeError) as err:
+        raise MapFileError(f"{path}: {err}") from err
+    for _, pose in [*keyframes, *((i, p) for i, _, p in trajectory)]:
+        if pose.shape != (4, 4):
+            raise MapFileError(f"{path}: poses must be 4x4, found {pose.shape}")
+    return MapFile(gaussians, table, dict(data["config"]), k, keyframes, trajectory, seen)

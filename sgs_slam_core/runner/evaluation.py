@@ -1,0 +1,192 @@
+"""Evaluation of a finished run: trajectory metrics, image metrics, mIoU, renders and plots.
+
+Images are rendered with the final map at the final estimated poses (the reference's protocol) on
+frame 0 and every frame with (t + 1) % eval_every == 0.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from sgs_slam_core.datasets.base import Dataset
+from sgs_slam_core.frame import Frame
+from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.metrics import (
+    ConfusionMatrix,
+    ate,
+    ate_paper,
+    depth_l1,
+    load_lpips,
+    ms_ssim,
+    paper_frame_miou,
+    plot_trajectories,
+    psnr,
+    rpe,
+    ssim,
+)
+from sgs_slam_core.render.api import RenderOutput, render
+from sgs_slam_core.render.settings import RenderSettings
+from sgs_slam_core.semantics import SemanticCodec
+
+__all__ = ["EvalOptions", "eval_indices", "evaluate", "trajectory_metrics"]
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """What to evaluate and where to put pictures."""
+
+    eval_every: int = 5
+    render_examples: int = 4  # frames saved side by side with ground truth under renders/
+    out_dir: Path | None = None
+
+
+def eval_indices(n: int, every: int) -> list[int]:
+    """Frame 0 and every frame t with (t + 1) % every == 0."""
+    return [t for t in range(n) if t == 0 or (t + 1) % every == 0]
+
+
+def trajectory_metrics(est: np.ndarray, gt: np.ndarray) -> dict[str, float | None]:
+    """ATE (standard and paper-style) and RPE over frames with ground truth."""
+    if len(est) < 3:
+        return {"ate_rmse_m": None, "ate_mean_m": None, "ate_paper_m": None, "rpe_trans_m": None, "rpe_rot_deg": None}
+    standard, paper, relative = ate(est, gt), ate_paper(est, gt), rpe(est, gt)
+    return {
+        "ate_rmse_m": standard.rmse,
+        "ate_mean_m": standard.mean,
+        "ate_paper_m": paper.mean,
+        "rpe_trans_m": relative.trans_rmse,
+        "rpe_rot_deg": relative.rot_rmse_deg,
+    }
+
+
+def _depth_vis(depth: np.ndarray, max_depth: float) -> np.ndarray:
+    scaled = np.clip(depth / max(max_depth, 1e-6) * 255, 0, 255).astype(np.uint8)
+    vis = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)[..., ::-1]
+    vis[depth <= 0] = 0
+    return vis
+
+
+def _save_example(path: Path, frame_rgb: np.ndarray, gt_sem: np.ndarray | None, gt_depth: np.ndarray,
+                  out: RenderOutput, pred_sem: np.ndarray | None) -> None:  # fmt: skip
+    rgb = (out.color.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
+    max_d = float(gt_depth.max()) if gt_depth.size else 1.0
+    rows = [np.concatenate([frame_rgb, rgb], 1)]
+    if gt_sem is not None and pred_sem is not None:
+        rows.append(np.concatenate([gt_sem, pred_sem], 1))
+    rows.append(np.concatenate([_depth_vis(gt_depth, max_d), _depth_vis(out.depth.cpu().numpy(), max_d)], 1))
+    grid = np.concatenate(rows, 0)
+    if grid.shape[1] < 640:  # small runs: enlarge (nearest) so the picture is readable
+        factor = int(np.ceil(640 / grid.shape[1]))
+        grid = cv2.resize(grid, (grid.shape[1] * factor, grid.shape[0] * factor), interpolation=cv2.INTER_NEAREST)
+    cv2.imwrite(str(path), grid[..., ::-1])
+
+
+class _FrameMetrics:
+    """Accumulates per-frame image metrics and the semantic confusion matrix."""
+
+    def __init__(self, codec: SemanticCodec, candidates: list[int], device: torch.device) -> None:
+        self.codec, self.candidates = codec, candidates
+        self.lpips, self.lpips_note = load_lpips(device)
+        self.cm = ConfusionMatrix()
+        self.values: dict[str, list[float]] = {
+            k: [] for k in ("psnr", "psnr_masked", "ssim", "ms_ssim", "depth_l1", "lpips", "miou_paper")
+        }
+
+    def add(self, frame: Frame, out: RenderOutput) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Score one frame; returns (ground-truth, predicted) semantic colour images when labelled."""
+        device = out.color.device
+        gt_rgb = torch.from_numpy(frame.rgb).to(device).float() / 255
+        gt_depth = torch.from_numpy(frame.depth).to(device)
+        pred = out.color.clamp(0, 1)
+        mask = (gt_depth > 0)[..., None].float()
+        v = self.values
+        v["psnr"].append(psnr(pred, gt_rgb))
+        v["psnr_masked"].append(psnr(pred * mask, gt_rgb * mask))  # SplaTAM: zero invalid pixels in both
+        v["ssim"].append(float(ssim(pred, gt_rgb)))
+        v["ms_ssim"].append(ms_ssim(pred, gt_rgb))
+        v["depth_l1"].append(depth_l1(out.depth, gt_depth))
+        if self.lpips is not None:
+            v["lpips"].append(float(self.lpips(pred, gt_rgb)))
+        if frame.labels is None:
+            return None, None
+        labels = torch.from_numpy(frame.labels.astype(np.int64))
+        decoded = self.codec.decode(out.semantic, self.candidates).cpu()
+        self.cm.update(decoded, labels)
+        present = sorted(int(i) for i in np.unique(frame.labels))
+        v["miou_paper"].append(paper_frame_miou(self.codec.decode(out.semantic, present).cpu(), labels))
+        return self.codec.table.colorize(frame.labels), self.codec.table.colorize(decoded.numpy())
+
+    def summary(self) -> dict[str, Any]:
+        """Means over frames (None where nothing was measured)."""
+
+        def mean(key: str) -> float | None:
+            vals = [x for x in self.values[key] if np.isfinite(x)]
+            return float(np.mean(vals)) if vals else None
+
+        labelled = bool(self.cm.matrix.sum())
+        return {
+            "psnr_db": mean("psnr"), "psnr_masked_db": mean("psnr_masked"), "ssim": mean("ssim"),
+            "ms_ssim": mean("ms_ssim"), "depth_l1_m": mean("depth_l1"), "lpips": mean("lpips"),
+            "lpips_note": self.lpips_note or None, "miou": self.cm.miou() if labelled else None,
+            "miou_paper": mean("miou_paper"), "pixel_accuracy": self.cm.pixel_accuracy() if labelled else None,
+            "per_class_iou": {self.codec.table.name_of(c): x for c, x in self.cm.iou().items()},
+        }  # fmt: skip
+
+
+def _plot(path: Path, poses: list[np.ndarray], est: np.ndarray, gt: np.ndarray, ate_rmse: float | None) -> None:
+    """Trajectory plot; with ground truth the estimate is first aligned onto it."""
+    if len(est) >= 3:
+        res = ate(est, gt)
+        aligned = est.copy()
+        aligned[:, :3, :3] = res.rotation @ est[:, :3, :3]
+        aligned[:, :3, 3] = est[:, :3, 3] @ res.rotation.T + res.translation
+        plot_trajectories(path, aligned, gt, title=f"ATE RMSE {100 * (ate_rmse or 0):.2f} cm")
+    else:
+        plot_trajectories(path, np.stack(poses), None, title="no ground truth")
+
+
+def evaluate(
+    dataset: Dataset,
+    frame_indices: list[int],  # dataset index of every processed frame, in order
+    poses: list[np.ndarray],  # estimated c2w of every processed frame
+    gaussians: GaussianMap,
+    codec: SemanticCodec,
+    candidates: list[int],
+    render_settings: RenderSettings,
+    options: EvalOptions,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Compute every metric of ``metrics.json`` that depends on the map and trajectory."""
+    gt_pairs = [(p, dataset[i].gt_c2w) for i, p in zip(frame_indices, poses, strict=True)]
+    with_gt = [(p, g) for p, g in gt_pairs if g is not None]
+    est = np.stack([p for p, _ in with_gt]) if with_gt else np.zeros((0, 4, 4))
+    gt = np.stack([g for _, g in with_gt]) if with_gt else np.zeros((0, 4, 4))
+    metrics: dict[str, Any] = {"frames": len(frame_indices), **trajectory_metrics(est, gt), "gt_frames": len(with_gt)}
+
+    scores = _FrameMetrics(codec, candidates, gaussians.device)
+    chosen = eval_indices(len(frame_indices), options.eval_every)
+    examples = set(chosen[:: max(1, len(chosen) // max(options.render_examples, 1))][: options.render_examples])
+    if options.out_dir is not None and examples:
+        (options.out_dir / "renders").mkdir(parents=True, exist_ok=True)
+    for n, t in enumerate(chosen):
+        frame = dataset[frame_indices[t]]
+        w2c = torch.as_tensor(np.linalg.inv(poses[t]), dtype=torch.float32, device=gaussians.device)
+        with torch.no_grad():
+            out = render(gaussians, frame.intrinsics, w2c, render_settings, with_semantics=frame.labels is not None)
+        gt_sem, pred_sem = scores.add(frame, out)
+        if t in examples and options.out_dir is not None:
+            path = options.out_dir / "renders" / f"frame_{frame_indices[t]:06d}.png"
+            _save_example(path, frame.rgb, gt_sem, frame.depth, out, pred_sem)
+        if progress:
+            progress(n + 1, len(chosen))
+    metrics.update(scores.summary(), eval_frames=len(chosen))
+    if options.out_dir is not None and len(poses) >= 2:
+        _plot(options.out_dir / "trajectory.png", poses, est, gt, metrics["ate_rmse_m"])
+    return metrics

@@ -1,0 +1,104 @@
+"""Keyframe store and window selection: geometric overlap, the paper's semantic filter, U(t) weights."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sgs_slam_core.slam.frame_data import CompactFrame
+from sgs_slam_core.slam.settings import KeyframeSettings
+
+__all__ = ["Window", "is_keyframe", "label_miou", "overlap_scores", "select_window"]
+
+
+def is_keyframe(index: int, every: int) -> bool:
+    """Frame 0 and every frame with (index + 1) % every == 0 (the reference's rule)."""
+    return index == 0 or (index + 1) % every == 0
+
+
+def overlap_scores(
+    points_world: np.ndarray,  # [M, 3]
+    keyframes: list[CompactFrame],
+    border_frac: float,
+) -> np.ndarray:  # [K]
+    """Fraction of the points that land inside each keyframe's image (minus a border), in front of it."""
+    scores = np.zeros(len(keyframes))
+    if points_world.shape[0] == 0:
+        return scores
+    homo = np.concatenate([points_world, np.ones((points_world.shape[0], 1))], axis=1)
+    for i, kf in enumerate(keyframes):
+        k = kf.intrinsics
+        cam = homo @ kf.w2c.T
+        z = cam[:, 2]
+        safe = np.where(z > 1e-6, z, 1.0)
+        u = k.fx * cam[:, 0] / safe + k.cx
+        v = k.fy * cam[:, 1] / safe + k.cy
+        b = border_frac * k.width
+        inside = (z > 1e-6) & (u >= b) & (u <= k.width - 1 - b) & (v >= b) & (v <= k.height - 1 - b)
+        scores[i] = inside.mean()
+    return scores
+
+
+def label_miou(a: np.ndarray, b: np.ndarray) -> float:
+    """Pixel-wise mIoU of two label images over the classes present in either (0 ignored)."""
+    if a.shape != b.shape:
+        raise ValueError(f"label images differ in size: {a.shape} vs {b.shape}")
+    classes = np.union1d(np.unique(a), np.unique(b))
+    classes = classes[classes > 0]
+    if classes.size == 0:
+        return 0.0
+    ious = [((a == c) & (b == c)).sum() / ((a == c) | (b == c)).sum() for c in classes]
+    return float(np.mean(ious))
+
+
+@dataclass(frozen=True)
+class Window:
+    """Keyframes chosen for one mapping step (indices into the store) and their loss weights."""
+
+    keyframes: tuple[int, ...]  # store indices, the most recent keyframe included
+    weights: tuple[float, ...]  # per keyframe, then the current frame last
+    candidates: int  # keyframes with any overlap before the filters
+    after_geometric: int
+    after_semantic: int
+
+
+def select_window(
+    store: list[CompactFrame],
+    points_world: np.ndarray,  # [M, 3] sampled from the current frame at its estimated pose
+    current_labels: np.ndarray | None,  # [H, W]
+    current_index: int,
+    s: KeyframeSettings,
+    rng: np.random.Generator,
+) -> Window:
+    """Choose the mapping window's keyframes and loss weights.
+
+    Up to ``window_size - 2`` past keyframes plus the most recent one (the current frame is always
+    mapped too): overlap > 0 (or > eta with the geometric filter), then those whose label mIoU with
+    the current frame exceeds T_sem are dropped, then a random subset is taken (as the reference).
+    """
+    if not store:
+        return Window((), (1.0,), 0, 0, 0)
+    older = store[:-1]
+    scores = overlap_scores(points_world, older, s.overlap_border_frac)
+    keep = [i for i, sc in enumerate(scores) if sc > 0]
+    candidates = len(keep)
+    if s.geometric_filter:
+        keep = [i for i in keep if scores[i] > s.geometric_threshold]
+    after_geo = len(keep)
+    if s.semantic_filter and current_labels is not None:
+        keep = [
+            i for i in keep
+            if older[i].labels is None or older[i].labels.shape != current_labels.shape
+            or label_miou(older[i].labels, current_labels) <= s.semantic_threshold
+        ]  # fmt: skip
+    after_sem = len(keep)
+    keep = [keep[j] for j in rng.permutation(len(keep))[: max(s.window_size - 2, 0)]]
+    chosen = (*sorted(keep), len(store) - 1)
+    frames = [store[i].index for i in chosen] + [current_index]
+    if s.uncertainty_weighting:
+        oldest = min(frames)
+        weights = tuple(float(np.exp(-s.uncertainty_tau * (f - oldest))) for f in frames)
+    else:
+        weights = (1.0,) * len(frames)
+    return Window(chosen, weights, candidates, after_geo, after_sem)

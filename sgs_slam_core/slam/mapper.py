@@ -1,0 +1,74 @@
+"""Mapping: optimise the Gaussians on a window of frames at their estimated poses."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.render.api import render
+from sgs_slam_core.render.settings import RenderSettings
+from sgs_slam_core.slam.frame_data import FrameTensors
+from sgs_slam_core.slam.losses import mapping_loss
+from sgs_slam_core.slam.optimizer import GaussianOptimizer
+from sgs_slam_core.slam.settings import MappingSettings
+
+__all__ = ["MapResult", "WindowFrame", "map_window", "prune_mask"]
+
+
+@dataclass
+class WindowFrame:
+    """A frame of the mapping window: data, estimated pose and loss weight U(t)."""
+
+    data: FrameTensors
+    w2c: torch.Tensor  # [4, 4] on the map's device
+    weight: float
+
+
+@dataclass(frozen=True)
+class MapResult:
+    """The optimised map and what mapping did."""
+
+    gaussians: GaussianMap
+    iterations: int
+    pruned: int
+    time_s: float
+    last_loss: float
+
+
+def prune_mask(gaussians: GaussianMap, opacity: float, max_scale: float) -> torch.Tensor:  # [N] bool, True = keep
+    """Keep Gaussians that are visible enough and not huge."""
+    with torch.no_grad():
+        op = torch.sigmoid(gaussians.logit_opacities)
+        scale = torch.exp(gaussians.log_scales).amax(dim=1)
+        return (op >= opacity) & (scale <= max_scale)
+
+
+def map_window(
+    gaussians: GaussianMap,
+    window: list[WindowFrame],
+    s: MappingSettings,
+    render_settings: RenderSettings,
+    scene_radius: float,
+    use_semantics: bool,
+    rng: np.random.Generator,
+) -> MapResult:
+    """``s.iterations`` Adam steps (fresh optimiser), each on one frame drawn uniformly from the window."""
+    t0 = time.perf_counter()
+    opt = GaussianOptimizer(gaussians, s)
+    pruned, last = 0, float("nan")
+    prune_at = set(s.prune_iterations)
+    for it in range(s.iterations):
+        wf = window[int(rng.integers(len(window)))]
+        semantic = use_semantics and wf.data.semantic is not None
+        out = render(opt.gaussians(), wf.data.intrinsics, wf.w2c, render_settings, with_semantics=semantic)
+        loss = wf.weight * mapping_loss(out, wf.data, s, semantic)
+        loss.backward()
+        opt.step()
+        last = float(loss.detach())
+        if it in prune_at:
+            pruned += opt.prune(prune_mask(opt.gaussians(), s.prune_opacity, s.prune_scale_ratio * scene_radius))
+    return MapResult(opt.result(), s.iterations, pruned, time.perf_counter() - t0, last)

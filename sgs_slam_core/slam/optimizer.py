@@ -1,0 +1,65 @@
+"""Adam over the Gaussian map's fields, with pruning and growth that keep the moments aligned."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.slam.settings import MappingSettings
+
+__all__ = ["GaussianOptimizer"]
+
+
+class GaussianOptimizer:
+    """Leaf tensors for every optimised field and one Adam (eps 1e-15) with per-field learning rates.
+
+    ``prune(keep)`` slices parameters *and* Adam moments, so the step after a prune updates the
+    surviving Gaussians normally (the reference rebuilt the tensors and lost that step).
+    """
+
+    def __init__(self, gaussians: GaussianMap, settings: MappingSettings) -> None:
+        self._labels, self._birth = gaussians.labels, gaussians.birth_frame
+        lrs = {
+            "means": settings.lr_means,
+            "log_scales": settings.lr_scales,
+            "logit_opacities": settings.lr_opacities,
+            "colors": settings.lr_colors,
+            "semantics": settings.lr_semantics,
+            "quats": settings.lr_quats,
+        }
+        self.names = GaussianMap.optimised_fields(not gaussians.isotropic)
+        self.params = {n: getattr(gaussians, n).detach().clone().requires_grad_(True) for n in self.names}
+        self.adam = torch.optim.Adam(
+            [{"params": [self.params[n]], "lr": lrs[n], "name": n} for n in self.names], lr=0.0, eps=1e-15
+        )
+
+    def gaussians(self) -> GaussianMap:
+        """The map built on the live parameters (differentiable)."""
+        return GaussianMap(labels=self._labels, birth_frame=self._birth, **self.params)
+
+    def result(self) -> GaussianMap:
+        """The optimised map, detached."""
+        return self.gaussians().detach()
+
+    def step(self) -> None:
+        """One Adam step, then clear gradients."""
+        self.adam.step()
+        self.adam.zero_grad(set_to_none=True)
+
+    def prune(self, keep: Tensor) -> int:  # keep: [N] bool
+        """Drop Gaussians where ``keep`` is False; returns how many were removed."""
+        removed = int((~keep).sum())
+        if removed == 0:
+            return 0
+        for group in self.adam.param_groups:
+            old = group["params"][0]
+            new = old.detach()[keep].clone().requires_grad_(True)
+            state = self.adam.state.pop(old, None)
+            if state:
+                state = {k: (v[keep] if torch.is_tensor(v) and v.dim() > 0 else v) for k, v in state.items()}
+                self.adam.state[new] = state
+            group["params"][0] = new
+            self.params[group["name"]] = new
+        self._labels, self._birth = self._labels[keep], self._birth[keep]
+        return removed

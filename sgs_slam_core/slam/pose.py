@@ -1,0 +1,48 @@
+"""Pose parameters optimised by tracking, and the constant-velocity motion model."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from sgs_slam_core.geometry.se3 import se3_exp
+
+__all__ = ["PoseParameters", "predict_constant_velocity"]
+
+
+class PoseParameters:
+    """A world-to-camera pose as a camera-frame se(3) increment on a fixed start: w2c = Exp(xi) w2c0.
+
+    ``xi = (rho, phi)``: ``rho`` translates the camera (m) and ``phi`` rotates it about its own centre
+    (rad), so rotation and translation steps do not interfere (MonoGS's left perturbation). The
+    reference optimised the raw w2c quaternion and translation instead, where a rotation step also
+    moves the camera centre by |t| x angle; its quaternion learning rates correspond to twice the
+    value here (a quaternion component step d rotates by 2d).
+    """
+
+    def __init__(self, w2c: np.ndarray, device: torch.device) -> None:
+        self.start = torch.as_tensor(w2c, dtype=torch.float32, device=device)
+        self.rho = torch.zeros(3, device=device, requires_grad=True)
+        self.phi = torch.zeros(3, device=device, requires_grad=True)
+
+    def w2c(self) -> Tensor:  # [4, 4], differentiable in rho and phi
+        """The pose as a matrix."""
+        return se3_exp(torch.cat([self.rho, self.phi])) @ self.start
+
+    def numpy(self) -> np.ndarray:  # [4, 4] float64
+        """The current value, composed in float64."""
+        with torch.no_grad():
+            xi = torch.cat([self.rho, self.phi]).double().cpu()
+            return (se3_exp(xi) @ self.start.double().cpu()).numpy()
+
+
+def predict_constant_velocity(c2w_prev: np.ndarray, c2w_prev2: np.ndarray | None) -> np.ndarray:  # [4, 4]
+    """Next camera-to-world pose assuming the last relative motion repeats (identity motion without history)."""
+    if c2w_prev2 is None:
+        return c2w_prev.copy()
+    motion = np.linalg.inv(c2w_prev2) @ c2w_prev
+    pred = c2w_prev @ motion
+    u, _, vt = np.linalg.svd(pred[:3, :3])  # keep the rotation orthonormal
+    pred[:3, :3] = u @ vt
+    return pred

@@ -1,0 +1,214 @@
+"""Typed settings of the SLAM loop (sections of :class:`~sgs_slam_core.config.SlamConfig`).
+
+Defaults are SGS-SLAM's Replica values (paper supplementary and released config); presets override.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sgs_slam_core.errors import ConfigError
+
+__all__ = ["DensifySettings", "GuardSettings", "KeyframeSettings", "MappingSettings", "TrackingSettings"]
+
+
+def _positive(section: str, **values: float) -> None:
+    for name, value in values.items():
+        if not value > 0:
+            raise ConfigError(f"{section}.{name} must be > 0, got {value}")
+
+
+def _non_negative(section: str, **values: float) -> None:
+    for name, value in values.items():
+        if value < 0:
+            raise ConfigError(f"{section}.{name} must be >= 0, got {value}")
+
+
+@dataclass(frozen=True)
+class TrackingSettings:
+    """Camera tracking against the fixed map.
+
+    Attributes:
+        iterations: budget of optimiser steps per frame.
+        lr_rotation, lr_translation: Adam learning rates of the camera-frame rotation (rad) and
+            translation (m) increment; the paper's quaternion rates map to twice their value here.
+        sil_threshold: only pixels with rendered silhouette above this (and valid depth) count.
+        weight_depth, weight_color, weight_semantic: weights of the L1 sums.
+        early_stop: stop before the budget once the best loss stops improving.
+        stop_rel_improvement: an iteration "improves" when it lowers the best loss by more than this
+            fraction.
+        stop_patience: iterations without improvement that end tracking.
+        min_iterations: never stop before this many steps.
+        constant_velocity: initialise from the last two poses (else from the last pose).
+        use_gt_pose: replace tracking by the ground-truth pose (ablation; needs ground truth).
+    """
+
+    iterations: int = 40
+    lr_rotation: float = 8e-4
+    lr_translation: float = 2e-3
+    sil_threshold: float = 0.99
+    weight_depth: float = 1.0
+    weight_color: float = 0.5
+    weight_semantic: float = 0.05
+    early_stop: bool = True
+    stop_rel_improvement: float = 1e-3
+    stop_patience: int = 5
+    min_iterations: int = 5
+    constant_velocity: bool = True
+    use_gt_pose: bool = False
+
+    def __post_init__(self) -> None:
+        _positive("tracking", iterations=self.iterations, lr_rotation=self.lr_rotation,
+                  lr_translation=self.lr_translation, stop_patience=self.stop_patience)  # fmt: skip
+        _non_negative("tracking", weight_depth=self.weight_depth, weight_color=self.weight_color,
+                      weight_semantic=self.weight_semantic, min_iterations=self.min_iterations)  # fmt: skip
+        if not 0 <= self.sil_threshold < 1:
+            raise ConfigError(f"tracking.sil_threshold must be in [0, 1), got {self.sil_threshold}")
+        if not 0 <= self.stop_rel_improvement < 1:
+            raise ConfigError(f"tracking.stop_rel_improvement must be in [0, 1), got {self.stop_rel_improvement}")
+
+
+@dataclass(frozen=True)
+class MappingSettings:
+    """Map optimisation over a window of keyframes.
+
+    Attributes:
+        iterations: optimiser steps per mapped frame; each renders one random window frame.
+        every: map every n-th frame (1 = every frame, as the reference).
+        lr_*: Adam learning rates per Gaussian field (eps 1e-15, as the reference).
+        weight_depth, weight_color, weight_semantic: loss weights.
+        ssim_weight: colour and semantic terms are (1 - w) L1 + w (1 - SSIM).
+        prune_iterations: iterations after whose step transparent / huge Gaussians are removed (the
+            optimiser state is sliced, so no step is lost, unlike the reference).
+        prune_opacity: remove Gaussians below this opacity.
+        prune_scale_ratio: remove Gaussians larger than this times the scene radius.
+        scene_radius_depth_ratio: scene radius = max first-frame depth / this.
+        refresh_labels: after mapping, set every Gaussian's class id from its semantic features.
+    """
+
+    iterations: int = 60
+    every: int = 1
+    lr_means: float = 1e-4
+    lr_colors: float = 2.5e-3
+    lr_semantics: float = 2.5e-3
+    lr_opacities: float = 5e-2
+    lr_scales: float = 1e-3
+    lr_quats: float = 1e-3
+    weight_depth: float = 1.0
+    weight_color: float = 0.5
+    weight_semantic: float = 0.1
+    ssim_weight: float = 0.2
+    prune_iterations: tuple[int, ...] = (0, 20)
+    prune_opacity: float = 0.005
+    prune_scale_ratio: float = 0.1
+    scene_radius_depth_ratio: float = 3.0
+    refresh_labels: bool = True
+
+    def __post_init__(self) -> None:
+        _non_negative("mapping", iterations=self.iterations, weight_depth=self.weight_depth,
+                      weight_color=self.weight_color, weight_semantic=self.weight_semantic)  # fmt: skip
+        _positive("mapping", every=self.every, lr_means=self.lr_means, lr_colors=self.lr_colors,
+                  lr_semantics=self.lr_semantics, lr_opacities=self.lr_opacities, lr_scales=self.lr_scales,
+                  lr_quats=self.lr_quats, scene_radius_depth_ratio=self.scene_radius_depth_ratio,
+                  prune_scale_ratio=self.prune_scale_ratio)  # fmt: skip
+        if not 0 <= self.ssim_weight <= 1:
+            raise ConfigError(f"mapping.ssim_weight must be in [0, 1], got {self.ssim_weight}")
+
+
+@dataclass(frozen=True)
+class DensifySettings:
+    """Adding Gaussians for unexplained pixels (after tracking, before mapping).
+
+    Attributes:
+        sil_threshold: pixels whose rendered silhouette is below this get new Gaussians.
+        depth_error_factor: also where the depth says new geometry is in front: rendered depth
+            greater than measured and the error above this times the median error (zeros included,
+            as the reference).
+        resolution_scale: add (and initialise) Gaussians from a copy of the frame scaled by this
+            (SplaTAM-S uses 0.5); radii grow accordingly.
+        initial_opacity: opacity of new Gaussians.
+        max_new_per_frame: cap on Gaussians added per frame (random subset; None = no cap).
+    """
+
+    sil_threshold: float = 0.5
+    depth_error_factor: float = 50.0
+    resolution_scale: float = 1.0
+    initial_opacity: float = 0.5
+    max_new_per_frame: int | None = None
+
+    def __post_init__(self) -> None:
+        if not 0 < self.resolution_scale <= 1:
+            raise ConfigError(f"densify.resolution_scale must be in (0, 1], got {self.resolution_scale}")
+        if not 0 < self.initial_opacity < 1:
+            raise ConfigError(f"densify.initial_opacity must be in (0, 1), got {self.initial_opacity}")
+        _positive("densify", depth_error_factor=self.depth_error_factor)
+        if self.max_new_per_frame is not None and self.max_new_per_frame < 1:
+            raise ConfigError("densify.max_new_per_frame must be >= 1 or null")
+
+
+@dataclass(frozen=True)
+class KeyframeSettings:
+    """Keyframe storage, selection and weighting (each of the paper's three steps switchable).
+
+    Attributes:
+        every: frame t becomes a keyframe when (t + 1) % every == 0 (and frame 0), as the reference.
+        window_size: frames per mapping window, current frame and last keyframe included (<= 25 in the paper).
+        overlap_samples: current-frame pixels projected into keyframes to score the overlap.
+        overlap_border_frac: projections within this fraction of the width from the border do not count.
+        geometric_filter: keep only keyframes whose overlap exceeds ``geometric_threshold`` (paper eta;
+            off = keep every keyframe with any overlap, as the released code).
+        geometric_threshold: eta (0.05 in the paper).
+        semantic_filter: drop candidates whose label mIoU with the current frame exceeds
+            ``semantic_threshold`` (T_sem, 0.7): near-identical views add little (paper; not in the code).
+        uncertainty_weighting: weight each window frame's mapping loss by U(t) = exp(-tau (t - t0)),
+            t0 the oldest frame of the window (paper; not in the code).
+        uncertainty_tau: tau per frame.
+    """
+
+    every: int = 5
+    window_size: int = 24
+    overlap_samples: int = 1600
+    overlap_border_frac: float = 0.02
+    geometric_filter: bool = True
+    geometric_threshold: float = 0.05
+    semantic_filter: bool = True
+    semantic_threshold: float = 0.7
+    uncertainty_weighting: bool = True
+    uncertainty_tau: float = 0.002
+
+    def __post_init__(self) -> None:
+        _positive("keyframes", every=self.every, overlap_samples=self.overlap_samples)
+        if self.window_size < 2:
+            raise ConfigError(f"keyframes.window_size must be >= 2, got {self.window_size}")
+        if not (0 <= self.geometric_threshold < 1 and 0 < self.semantic_threshold <= 1):
+            raise ConfigError("keyframes thresholds must be fractions")
+        _non_negative("keyframes", uncertainty_tau=self.uncertainty_tau, overlap_border_frac=self.overlap_border_frac)
+
+
+@dataclass(frozen=True)
+class GuardSettings:
+    """Tracking-failure detection: a flagged frame is not mapped, so the map stays intact.
+
+    Attributes:
+        enabled: switch the guard on.
+        warmup_frames: frames tracked before the guard starts judging.
+        history: past frames whose median is the reference.
+        residual_jump: flag when the mean depth residual exceeds this times the recent median.
+        loss_jump: flag when the per-pixel tracking loss exceeds this times the recent median.
+        min_valid_fraction: flag when fewer pixels than this are both measured and well mapped.
+        min_residual_m: residuals below this never flag (noise floor).
+    """
+
+    enabled: bool = True
+    warmup_frames: int = 3
+    history: int = 20
+    residual_jump: float = 6.0
+    loss_jump: float = 6.0
+    min_valid_fraction: float = 0.05
+    min_residual_m: float = 0.02
+
+    def __post_init__(self) -> None:
+        _positive("guard", history=self.history, residual_jump=self.residual_jump, loss_jump=self.loss_jump)
+        _non_negative("guard", warmup_frames=self.warmup_frames, min_residual_m=self.min_residual_m)
+        if not 0 <= self.min_valid_fraction < 1:
+            raise ConfigError("guard.min_valid_fraction must be in [0, 1)")

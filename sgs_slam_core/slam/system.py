@@ -1,0 +1,251 @@
+"""``Slam``: one frame in, one :class:`StepResult` out. The ROS nodes, the CLI and the tests all use it."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from sgs_slam_core.config.schema import SlamConfig
+from sgs_slam_core.errors import BackendUnavailableError, FrameError
+from sgs_slam_core.frame import Frame
+from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.geometry.se3 import se3_inverse
+from sgs_slam_core.labels import LabelTable
+from sgs_slam_core.render.api import RenderOutput, render
+from sgs_slam_core.semantics import SemanticCodec
+from sgs_slam_core.slam.densify import densify_mask, gaussians_from_pixels, scene_radius
+from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors, resize_arrays
+from sgs_slam_core.slam.guard import TrackingGuard
+from sgs_slam_core.slam.keyframes import Window, is_keyframe, select_window
+from sgs_slam_core.slam.mapper import MapResult, WindowFrame, map_window
+from sgs_slam_core.slam.pose import predict_constant_velocity
+from sgs_slam_core.slam.tracker import TrackResult, track
+
+__all__ = ["Slam", "StepResult", "resolve_device"]
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` -> CUDA when available, else CPU; ``cuda`` without a GPU raises."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise BackendUnavailableError("device 'cuda' requested but torch sees no CUDA GPU")
+    return torch.device(name)
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """What happened to one frame."""
+
+    index: int  # frame counter of this Slam (0 = first processed frame)
+    stamp_ns: int
+    c2w: np.ndarray  # [4, 4] estimated camera-to-world pose (map frame)
+    tracking: TrackResult | None  # None for the first frame (and with use_gt_pose)
+    mapping: MapResult | None  # None when not mapped (failure, or not a mapping frame)
+    window: Window | None
+    keyframe: bool
+    added: int  # Gaussians added by initialisation / densification
+    num_gaussians: int
+    tracking_failed: bool = False
+    failure_reason: str | None = None
+    track_time_s: float = 0.0
+    map_time_s: float = 0.0  # densification + mapping
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+class Slam:
+    """Semantic Gaussian-splatting SLAM (SGS-SLAM) driven one frame at a time.
+
+    The map frame is the first camera's frame unless ``initial_c2w`` is given. Every frame must
+    share the first frame's intrinsics and carry depth; labels are optional per frame.
+    """
+
+    def __init__(
+        self, config: SlamConfig, label_table: LabelTable | None = None, initial_c2w: np.ndarray | None = None
+    ) -> None:
+        self.config = config
+        self.device = resolve_device(config.device)
+        self.codec = SemanticCodec(config.semantic, label_table or LabelTable.nyu40())
+        self.initial_c2w = np.eye(4) if initial_c2w is None else np.asarray(initial_c2w, dtype=np.float64)
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Forget the map, poses and keyframes (configuration and label table are kept)."""
+        self.gaussians = GaussianMap.empty(self.codec.num_channels, device=self.device)
+        self.intrinsics: Intrinsics | None = None
+        self.keyframes: list[CompactFrame] = []
+        self.trajectory: list[tuple[int, int, np.ndarray]] = []  # (frame index, stamp_ns, c2w)
+        self.scene_radius = 1.0
+        self.seen_ids: set[int] = {0}
+        self.guard = TrackingGuard(self.config.guard)
+        self.rng = np.random.default_rng(self.config.seed)
+        self.torch_rng = torch.Generator().manual_seed(self.config.seed)
+        self.frames_processed = 0
+        self.failures = 0
+        self._gt_origin: np.ndarray | None = None
+
+    @property
+    def num_gaussians(self) -> int:
+        """Gaussians in the map."""
+        return len(self.gaussians)
+
+    @property
+    def last_c2w(self) -> np.ndarray | None:
+        """The latest estimated pose."""
+        return self.trajectory[-1][2].copy() if self.trajectory else None
+
+    # ------------------------------------------------------------------ the loop
+    def process(self, frame: Frame) -> StepResult:
+        """Track, densify, select keyframes, map, and maybe keep the frame as a keyframe."""
+        self._validate(frame)
+        t_start = time.perf_counter()
+        index = self.frames_processed
+        if frame.labels is not None:
+            self.seen_ids.update(int(i) for i in np.unique(frame.labels))
+        data = FrameTensors.from_frame(frame, self.codec, self.device)
+        data.index = index
+        use_sem = frame.labels is not None
+        timings: dict[str, float] = {}
+
+        tracking: TrackResult | None = None
+        failure: str | None = None
+        if index == 0:
+            c2w = self.initial_c2w.copy()
+            self._gt_origin = None if frame.gt_c2w is None else frame.gt_c2w.copy()
+            self.scene_radius = scene_radius(frame.depth, self.config.mapping.scene_radius_depth_ratio)
+        elif self.config.tracking.use_gt_pose:
+            if frame.gt_c2w is None:
+                raise FrameError("tracking.use_gt_pose is set but the frame has no ground-truth pose")
+            c2w = self._gt_in_map_frame(frame.gt_c2w)
+        else:
+            tracking = self._track(data, frame)
+            c2w = np.linalg.inv(tracking.w2c)
+            failure = self.guard.check(tracking.depth_residual_m, tracking.loss_per_pixel, tracking.valid_fraction)
+        track_time = time.perf_counter() - t_start
+        timings["track"] = track_time
+        self.trajectory.append((index, frame.stamp_ns, c2w))
+        self.frames_processed += 1
+        if failure is not None:
+            self.failures += 1
+            return StepResult(index, frame.stamp_ns, c2w, tracking, None, None, False, 0, self.num_gaussians,
+                              True, failure, track_time, 0.0, timings)  # fmt: skip
+
+        t_map = time.perf_counter()
+        added = self._densify(data, frame, c2w, index)
+        timings["densify"] = time.perf_counter() - t_map
+        mapping, window = None, None
+        if index % self.config.mapping.every == 0 and self.config.mapping.iterations > 0:
+            t_sel = time.perf_counter()
+            window = self._select_window(data, c2w, frame.labels, index)
+            timings["keyframe_selection"] = time.perf_counter() - t_sel
+            mapping = self._map(data, c2w, window, use_sem)
+            self.gaussians = mapping.gaussians
+        if self.config.mapping.refresh_labels and use_sem:
+            self._refresh_labels()
+        keyframe = is_keyframe(index, self.config.keyframes.every)
+        if keyframe:
+            stored = Frame(frame.rgb, frame.depth, frame.intrinsics, frame.labels, frame.stamp_ns, None, index)
+            self.keyframes.append(CompactFrame.from_frame(stored, np.linalg.inv(c2w)))
+        map_time = time.perf_counter() - t_map
+        timings["map"] = map_time
+        return StepResult(index, frame.stamp_ns, c2w, tracking, mapping, window, keyframe, added, self.num_gaussians,
+                          False, None, track_time, map_time, timings)  # fmt: skip
+
+    def _validate(self, frame: Frame) -> None:
+        if self.intrinsics is None:
+            self.intrinsics = frame.intrinsics
+        elif frame.intrinsics != self.intrinsics:
+            raise FrameError(f"frame intrinsics {frame.intrinsics} differ from the first frame's {self.intrinsics}")
+        if frame.valid_depth_fraction == 0:
+            raise FrameError("frame has no valid depth: SGS-SLAM needs an RGB-D frame")
+        if self.trajectory and frame.stamp_ns < self.trajectory[-1][1]:
+            raise FrameError(f"time stamp went backwards: {frame.stamp_ns} < {self.trajectory[-1][1]} ns")
+
+    def _gt_in_map_frame(self, gt_c2w: np.ndarray) -> np.ndarray:
+        """Ground truth re-expressed so that the first frame's ground truth maps to ``initial_c2w``."""
+        if self._gt_origin is None:
+            raise FrameError("use_gt_pose needs ground truth on the first frame too")
+        return self.initial_c2w @ np.linalg.inv(self._gt_origin) @ gt_c2w
+
+    def _track(self, data: FrameTensors, frame: Frame) -> TrackResult:
+        prev = self.trajectory[-1][2]
+        prev2 = self.trajectory[-2][2] if len(self.trajectory) > 1 and self.config.tracking.constant_velocity else None
+        init_c2w = predict_constant_velocity(prev, prev2)
+        use_sem = frame.labels is not None and self.config.tracking.weight_semantic > 0
+        return track(self.gaussians, data, np.linalg.inv(init_c2w), self.config.tracking, self.config.render, use_sem)
+
+    def _densify(self, data: FrameTensors, frame: Frame, c2w: np.ndarray, index: int) -> int:
+        c2w_t = torch.as_tensor(c2w, dtype=torch.float32, device=self.device)
+        if index == 0:
+            mask = data.valid
+        else:
+            with torch.no_grad():
+                out = render(
+                    self.gaussians, data.intrinsics, se3_inverse(c2w_t), self.config.render, with_semantics=False
+                )
+            mask = densify_mask(out, data, self.config.densify)
+        scale = self.config.densify.resolution_scale
+        source = data
+        if scale < 1.0:
+            rgb, depth, labels, k = resize_arrays(frame.rgb, frame.depth, frame.labels, frame.intrinsics, scale)
+            source = FrameTensors.from_arrays(index, k, rgb, depth, labels, self.codec, self.device)
+            mask = torch.nn.functional.interpolate(mask[None, None].float(), size=k.shape, mode="nearest")[0, 0] > 0.5
+        new = gaussians_from_pixels(source, c2w_t, mask, self.codec.num_channels, self.config.densify,
+                                    generator=self.torch_rng)  # fmt: skip
+        self.gaussians = self.gaussians.cat(new)
+        return len(new)
+
+    def _select_window(self, data: FrameTensors, c2w: np.ndarray, labels: np.ndarray | None, index: int) -> Window:
+        valid = torch.nonzero(data.valid.reshape(-1)).squeeze(1).cpu().numpy()
+        picks = self.rng.choice(valid, size=min(self.config.keyframes.overlap_samples, valid.size), replace=False)
+        k = data.intrinsics
+        v, u = np.divmod(picks, k.width)
+        z = data.depth.reshape(-1)[torch.as_tensor(picks, device=self.device)].cpu().numpy().astype(np.float64)
+        cam = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=1)
+        world = cam @ c2w[:3, :3].T + c2w[:3, 3]
+        return select_window(self.keyframes, world, labels, index, self.config.keyframes, self.rng)
+
+    def _map(self, data: FrameTensors, c2w: np.ndarray, window: Window, use_sem: bool) -> MapResult:
+        frames = []
+        for store_index, weight in zip(window.keyframes, window.weights[:-1], strict=True):
+            kf = self.keyframes[store_index]
+            w2c = torch.as_tensor(kf.w2c, dtype=torch.float32, device=self.device)
+            frames.append(WindowFrame(kf.to_tensors(self.codec, self.device), w2c, weight))
+        w2c_now = torch.as_tensor(np.linalg.inv(c2w), dtype=torch.float32, device=self.device)
+        frames.append(WindowFrame(data, w2c_now, window.weights[-1]))
+        return map_window(self.gaussians, frames, self.config.mapping, self.config.render, self.scene_radius, use_sem,
+                          self.rng)  # fmt: skip
+
+    def _refresh_labels(self) -> None:
+        if len(self.gaussians):
+            decoded = self.codec.decode(self.gaussians.semantics, self.label_candidates())
+            self.gaussians = self.gaussians.with_tensors(labels=decoded.to(self.device))
+
+    # ------------------------------------------------------------------ queries
+    def label_candidates(self) -> list[int]:
+        """Class ids a decoded label may take: every id seen in the input so far."""
+        return sorted(self.seen_ids)
+
+    def decode(self, semantic: torch.Tensor) -> torch.Tensor:  # [..., S] -> [...]
+        """Class ids from semantic features (rendered or per Gaussian)."""
+        return self.codec.decode(semantic, self.label_candidates())
+
+    @torch.no_grad()
+    def render_view(
+        self, c2w: np.ndarray, intrinsics: Intrinsics | None = None, with_semantics: bool = True
+    ) -> RenderOutput:
+        """Render the current map from a camera-to-world pose (default: the input camera)."""
+        k = intrinsics or self.intrinsics
+        if k is None:
+            raise FrameError("no frame processed yet: give the intrinsics to render with")
+        w2c = torch.as_tensor(np.linalg.inv(c2w), dtype=torch.float32, device=self.device)
+        return render(self.gaussians, k, w2c, self.config.render, with_semantics=with_semantics)
+
+    def keyframe_poses(self) -> list[tuple[int, np.ndarray]]:
+        """(frame index, c2w) of every keyframe."""
+        return [(kf.index, np.linalg.inv(kf.w2c)) for kf in self.keyframes]

@@ -1,0 +1,92 @@
+"""``sgs-slam run`` / ``eval`` / ``synth`` end to end on the tiny scene."""
+
+import json
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from sgs_slam_core.cli import main
+from sgs_slam_core.mapio import load_map, read_splat_ply
+from sgs_slam_core.metrics import read_tum_trajectory
+
+from ..conftest import FAST_SLAM
+
+KEYS = ("frames", "ate_rmse_m", "ate_mean_m", "psnr_db", "ssim", "depth_l1_m", "miou", "miou_paper", "fps",
+        "track_ms_per_frame", "map_ms_per_frame", "num_gaussians", "peak_memory_mb", "tracking_failures")  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def run_dir(tiny_scene, tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "tiny"
+    sets = [a for o in FAST_SLAM for a in ("--set", o)]
+    assert main(["run", str(tiny_scene), "--out", str(out), "--max-frames", "8", "--quiet", *sets]) == 0
+    return out
+
+
+def test_run_writes_the_documented_outputs(run_dir, capsys):
+    for name in ("trajectory.txt", "metrics.json", "config.yaml", "map.ply", "map.sgsmap", "trajectory.png", "run.yaml",
+                 "frames.csv"):  # fmt: skip
+        assert (run_dir / name).is_file(), name
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert all(k in metrics for k in KEYS)
+    assert metrics["frames"] == 8 and metrics["ate_rmse_m"] < 0.02 and metrics["psnr_db"] > 25
+    assert metrics["lpips"] is None and "LPIPS" in metrics["lpips_note"]
+    stamps, poses = read_tum_trajectory(run_dir / "trajectory.txt")
+    assert len(stamps) == 8 and poses.shape == (8, 4, 4)
+    assert yaml.safe_load((run_dir / "config.yaml").read_text())["tracking"]["iterations"] == 30
+    renders = sorted((run_dir / "renders").glob("*.png"))
+    assert renders and cv2.imread(str(renders[0])).shape[0] >= 2 * 48
+    saved = load_map(run_dir / "map.sgsmap")
+    ply, table = read_splat_ply(run_dir / "map.ply")
+    assert len(ply) == len(saved.gaussians) == metrics["num_gaussians"] and table is not None
+
+
+def test_eval_recomputes_the_same_numbers(run_dir, capsys):
+    before = json.loads((run_dir / "metrics.json").read_text())
+    assert main(["eval", str(run_dir), "--no-write"]) == 0
+    table = capsys.readouterr().out
+    assert f"{before['psnr_db']:.2f}" in table and f"{100 * before['miou']:.2f}" in table
+    assert f"{100 * before['ate_rmse_m']:.3f}" in table
+
+
+def test_existing_output_is_refused_with_one_line(run_dir, tiny_scene):
+    cmd = [
+        sys.executable,
+        "-m",
+        "sgs_slam_core.cli",
+        "run",
+        str(tiny_scene),
+        "--out",
+        str(run_dir),
+        "--max-frames",
+        "2",
+    ]
+    out = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    assert out.returncode == 1
+    assert out.stderr.strip().splitlines() == [out.stderr.strip().splitlines()[-1]]
+    assert "exists and is not empty" in out.stderr and "--overwrite" in out.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["run", "/nonexistent/folder", "--out", "x"], "does not exist"),
+        (["run", "{tiny}", "--out", "x", "--set", "tracking.iterationz=3"], "unknown config key"),
+        (["eval", "/tmp"], "not a run folder"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_1(args, message, capsys, tiny_scene, tmp_path):
+    args = [a.format(tiny=tiny_scene) if a != "x" else str(tmp_path / "out") for a in args]
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err and err.startswith("sgs-slam: error:")
+
+
+def test_synth_command(tmp_path):
+    assert main(["synth", str(tmp_path / "s"), "--preset", "tiny", "--frames", "2", "--seed", "3"]) == 0
+    assert len(list((tmp_path / "s" / "frames").glob("*.png"))) == 2
+    assert np.loadtxt(tmp_path / "s" / "traj.txt").shape == (2, 16)

@@ -1,0 +1,108 @@
+"""Unit tests of SLAM building blocks."""
+
+import numpy as np
+import pytest
+import torch
+
+from sgs_slam_core.config import load_config
+from sgs_slam_core.frame import Frame
+from sgs_slam_core.geometry import Intrinsics, se3_exp
+from sgs_slam_core.labels import LabelTable
+from sgs_slam_core.semantics import SemanticCodec
+from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors
+from sgs_slam_core.slam.guard import TrackingGuard
+from sgs_slam_core.slam.keyframes import label_miou, overlap_scores, select_window
+from sgs_slam_core.slam.optimizer import GaussianOptimizer
+from sgs_slam_core.slam.pose import PoseParameters, predict_constant_velocity
+from sgs_slam_core.slam.settings import GuardSettings, KeyframeSettings, MappingSettings
+
+from ..render.scenes import random_scene
+
+K = Intrinsics(50.0, 50.0, 31.5, 23.5, 64, 48)
+
+
+def keyframe(index, w2c, labels):
+    return CompactFrame(index, index, K, np.zeros((48, 64, 3), np.uint8), np.zeros((48, 64), np.uint16), labels, w2c)
+
+
+def test_constant_velocity_repeats_the_last_motion():
+    a = np.eye(4)
+    b = se3_exp(torch.tensor([0.1, 0.0, 0.0, 0.0, 0.05, 0.0], dtype=torch.float64)).numpy()
+    pred = predict_constant_velocity(b, a)
+    assert np.allclose(np.linalg.inv(b) @ pred, b, atol=1e-12)
+    assert np.array_equal(predict_constant_velocity(b, None), b)
+
+
+def test_pose_parameters_start_at_the_given_pose_and_move_in_the_camera_frame():
+    w2c = se3_exp(torch.tensor([0.3, -0.2, 1.0, 0.1, 0.2, 0.3], dtype=torch.float64)).numpy()
+    p = PoseParameters(w2c, torch.device("cpu"))
+    assert np.allclose(p.numpy(), w2c, atol=1e-6)
+    with torch.no_grad():
+        p.rho += torch.tensor([0.0, 0.0, -0.5])  # moving the world by -0.5 along the camera's z ...
+    c2w, c2w0 = np.linalg.inv(p.numpy()), np.linalg.inv(w2c)
+    assert np.allclose(c2w[:3, 3] - c2w0[:3, 3], 0.5 * c2w0[:3, 2], atol=1e-6)  # ... moves the camera forward
+
+
+def test_optimizer_prune_keeps_adam_moments_aligned():
+    gm, _ = random_scene(10, 8, 8)
+    opt = GaussianOptimizer(gm, MappingSettings())
+    loss = sum((v * (i + 1)).sum() for i, v in enumerate(opt.params.values()))
+    loss.backward()
+    opt.step()
+    moments = opt.adam.state[opt.params["means"]]["exp_avg"].clone()
+    keep = torch.arange(10) % 3 != 0
+    assert opt.prune(keep) == 4
+    new = opt.params["means"]
+    assert new.shape == (6, 3) and torch.equal(opt.adam.state[new]["exp_avg"], moments[keep])
+    assert len(opt.result()) == 6 and opt.result().labels.shape == (6,)
+    before = new.detach().clone()
+    new.sum().backward()
+    opt.step()  # the step after a prune updates the survivors
+    assert not torch.equal(opt.params["means"].detach(), before)
+
+
+def test_overlap_scores_and_label_miou():
+    pts = np.array([[0.0, 0.0, 2.0], [0.2, 0.0, 2.0], [0.0, 0.0, -1.0]])
+    behind = np.eye(4)
+    behind[2, 3] = 5.0  # a keyframe 5 m further back sees all three points
+    turned = np.diag([1.0, 1.0, -1.0, 1.0])  # looking the other way: only the point behind
+    scores = overlap_scores(
+        pts, [keyframe(0, np.eye(4), None), keyframe(1, behind, None), keyframe(2, turned, None)], 0.0
+    )
+    assert scores == pytest.approx([2 / 3, 1.0, 1 / 3])
+    a = np.array([[1, 1, 2], [0, 2, 2]])
+    assert label_miou(a, a) == 1.0
+    assert label_miou(a, np.array([[1, 2, 2], [0, 2, 2]])) == pytest.approx((1 / 2 + 3 / 4) / 2)
+
+
+def test_select_window_filters_in_order():
+    labels = np.zeros((48, 64), np.int32)
+    labels[:, 32:] = 3
+    other = np.zeros((48, 64), np.int32)
+    other[:, 10:] = 5
+    store = [keyframe(i, np.eye(4), labels if i % 2 else other) for i in range(6)]
+    pts = np.array([[0.0, 0.0, 2.0]] * 10)
+    s = KeyframeSettings(window_size=24, semantic_threshold=0.7)
+    w = select_window(store, pts, labels, 30, s, np.random.default_rng(0))
+    assert (w.candidates, w.after_geometric, w.after_semantic) == (5, 5, 3)  # keyframes 1 and 3 repeat the view
+    assert w.keyframes[-1] == 5 and 1 not in w.keyframes and 3 not in w.keyframes
+    assert len(w.weights) == len(w.keyframes) + 1 and w.weights[-1] < w.weights[0]
+
+
+def test_guard_flags_jumps_after_warmup():
+    g = TrackingGuard(GuardSettings(warmup_frames=2, residual_jump=5.0))
+    for _ in range(5):
+        assert g.check(0.005, 1.0, 0.8) is None
+    assert "depth residual" in g.check(0.2, 1.0, 0.8)
+    assert "pixels" in g.check(0.005, 1.0, 0.01)
+    assert g.check(0.006, 1.1, 0.8) is None
+
+
+def test_compact_frames_round_trip_depth_to_a_fifth_of_a_millimetre():
+    depth = np.random.default_rng(0).uniform(0.1, 8.0, (48, 64)).astype(np.float32)
+    f = Frame(np.zeros((48, 64, 3), np.uint8), depth, K, np.ones((48, 64), np.int32))
+    c = CompactFrame.from_frame(f, np.eye(4))
+    assert np.abs(c.depth_m - depth).max() <= 1e-4 + 1e-6
+    codec = SemanticCodec(load_config("synthetic").semantic, LabelTable.nyu40())
+    t = c.to_tensors(codec, torch.device("cpu"))
+    assert isinstance(t, FrameTensors) and t.semantic.shape == (48, 64, 3)
