@@ -11,7 +11,7 @@ setup(
     license="Apache-2.0",
     python_requires=">=3.10",
     packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
-    package_data={"sgs_slam_core.config": ["presets/*.yaml"]},
+    package_data={"sgs_slam_core.config": ["presets/*.yaml"], "sgs_slam_core.render": ["cpu/*.cpp"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -25,6 +25,7 @@ setup(
         "rosbags>=0.11",
         "mcap>=1.1",
         "mcap-ros2-support>=0.5",
+        "ninja",  # builds the compiled CPU renderer on first use (with the system's g++)
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],

@@ -25,11 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import append_section, markdown_table
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry import Intrinsics, se3_exp
-from sgs_slam_core.render import (
-    RenderSettings,
-    gsplat_backend,
-    render,
-)
+from sgs_slam_core.render import RenderSettings, cpu_backend, gsplat_backend, render
 
 CPU_CASES = [(80, 60, 2_000), (160, 120, 5_000), (320, 240, 20_000)]
 GPU_CASES = [*CPU_CASES, (640, 480, 100_000), (1200, 680, 300_000)]
@@ -77,7 +73,7 @@ def run_case(width: int, height: int, n: int, backend: str, device: str, repeats
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--backend", choices=["torch", "gsplat", "all"], default="all")
+    parser.add_argument("--backend", choices=["torch", "cpu", "gsplat", "all"], default="all")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--no-append", action="store_true", help="print only, do not append to BENCHMARKS.md")
     parser.add_argument("--case", help=argparse.SUPPRESS)  # internal: run one case in this process
@@ -88,14 +84,17 @@ def main() -> None:
         return
 
     cuda = torch.cuda.is_available()
-    backends = ["torch", "gsplat"] if args.backend == "all" else [args.backend]
+    backends = ["torch", "cpu", "gsplat"] if args.backend == "all" else [args.backend]
     if "gsplat" in backends and not (cuda and gsplat_backend.is_available()):
         print(f"gsplat skipped: {'no CUDA device' if not cuda else gsplat_backend.import_error()}")
         backends.remove("gsplat")
+    if "cpu" in backends and not cpu_backend.is_available():
+        print(f"cpu skipped: {cpu_backend.unavailable_reason()}")
+        backends.remove("cpu")
     rows = []
     for backend in backends:
-        device = "cuda" if cuda else "cpu"
-        for w, h, n in GPU_CASES if device == "cuda" else CPU_CASES:
+        device = "cuda" if backend == "gsplat" or (backend == "torch" and cuda) else "cpu"
+        for w, h, n in GPU_CASES if device == "cuda" or backend == "cpu" else CPU_CASES:
             # One process per case, so peak memory is that case's own.
             cmd = [
                 sys.executable,

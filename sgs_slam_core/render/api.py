@@ -7,6 +7,7 @@ therefore come from autograd on every backend.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -17,13 +18,15 @@ from sgs_slam_core.errors import BackendUnavailableError, ShapeError
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.se3 import quat_multiply, quat_to_rotmat, rotmat_to_quat
-from sgs_slam_core.render import gsplat_backend
+from sgs_slam_core.render import cpu_backend, gsplat_backend
 from sgs_slam_core.render.composite import composite
 from sgs_slam_core.render.projection import project_gaussians
 from sgs_slam_core.render.settings import BackendName, RenderSettings
 from sgs_slam_core.render.tiling import plan_tiles
 
 __all__ = ["CameraGaussians", "RenderOutput", "render", "resolve_backend", "to_camera"]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -73,9 +76,18 @@ def to_camera(gaussians: GaussianMap, w2c: Tensor, with_semantics: bool = True) 
 
 
 def resolve_backend(requested: BackendName, device: torch.device) -> str:
-    """The backend that will run: ``auto`` means gsplat on CUDA when importable, else torch."""
+    """The backend that will run.
+
+    ``auto`` means gsplat for CUDA tensors when importable, the compiled backend for CPU tensors
+    when it builds (the first call may build it, about a minute), else torch.
+    """
     if requested == "torch":
         return "torch"
+    if requested == "cpu":
+        if device.type != "cpu":
+            raise BackendUnavailableError("the compiled cpu backend takes CPU tensors")
+        cpu_backend.extension()  # raises with the build error
+        return "cpu"
     on_cuda = device.type == "cuda" and torch.cuda.is_available()
     if requested == "gsplat":
         if not on_cuda:
@@ -83,7 +95,22 @@ def resolve_backend(requested: BackendName, device: torch.device) -> str:
         if not gsplat_backend.is_available():
             raise BackendUnavailableError(f"gsplat is not importable: {gsplat_backend.import_error()}")
         return "gsplat"
-    return "gsplat" if on_cuda and gsplat_backend.is_available() else "torch"
+    if on_cuda:
+        return "gsplat" if gsplat_backend.is_available() else "torch"
+    if device.type == "cpu" and cpu_backend.is_available():
+        return "cpu"
+    if device.type == "cpu" and not _warned_fallback:
+        _warn_fallback(cpu_backend.unavailable_reason())
+    return "torch"
+
+
+_warned_fallback = False
+
+
+def _warn_fallback(reason: str) -> None:
+    global _warned_fallback  # noqa: PLW0603 - warn once per process
+    _warned_fallback = True
+    log.warning("render backend auto: %s", reason)
 
 
 def render(
@@ -106,7 +133,7 @@ def render(
     if backend == "gsplat":
         feats, depth, sil = gsplat_backend.rasterize(cam, intrinsics, settings)
     else:
-        feats, depth, sil = _rasterize_torch(cam, intrinsics, settings)
+        feats, depth, sil = _rasterize_tiled(cam, intrinsics, settings, compiled=backend == "cpu")
     s = feats.shape[-1] - 3
     return RenderOutput(
         color=feats[..., :3],
@@ -126,23 +153,31 @@ def camera_covariances(cam: CameraGaussians) -> Tensor:  # [N, 3, 3]
     return m @ m.transpose(1, 2)
 
 
-def _rasterize_torch(
-    cam: CameraGaussians, intrinsics: Intrinsics, settings: RenderSettings
+def _rasterize_tiled(
+    cam: CameraGaussians, intrinsics: Intrinsics, settings: RenderSettings, compiled: bool
 ) -> tuple[Tensor, Tensor, Tensor]:
+    """Projection in torch (autograd), then the compiled or the torch compositor.
+
+    Isotropic maps on the compiled backend skip the torch projection: projection, binning and
+    compositing (and their gradients) all run in the extension.
+    """
+    if compiled and cam.quats is None:
+        img, sil = cpu_backend.render_isotropic_cpu(
+            cam.means, cam.scales, cam.opacities, cam.features, intrinsics, settings
+        )
+        return img[..., :-1], img[..., -1], sil
     if cam.quats is None:
         proj = project_gaussians(cam.means, cam.opacities, intrinsics, settings, scales=cam.scales)
     else:
         covars = camera_covariances(cam)
         proj = project_gaussians(cam.means, cam.opacities, intrinsics, settings, covars_cam=covars)
-    plan = plan_tiles(
-        proj.means2d,
-        proj.radii,
-        proj.depths,
-        intrinsics.width,
-        intrinsics.height,
-        settings.tile_size,
-        settings.chunk_elements,
-    )
     feats = torch.cat([cam.features, proj.depths[:, None]], dim=1)
-    img, sil = composite(proj.means2d, proj.conics, proj.opacities, feats, plan, settings)
+    k = intrinsics
+    if compiled:
+        img, sil = cpu_backend.composite_cpu(proj.means2d, proj.conics, proj.opacities, feats, proj.radii, proj.depths,
+                                             k.width, k.height, settings)  # fmt: skip
+    else:
+        plan = plan_tiles(proj.means2d, proj.radii, proj.depths, k.width, k.height, settings.tile_size,
+                          settings.chunk_elements)  # fmt: skip
+        img, sil = composite(proj.means2d, proj.conics, proj.opacities, feats, plan, settings)
     return img[..., :-1], img[..., -1], sil

@@ -10,6 +10,8 @@ Two implementations of the same maths:
 
 Per pixel p and Gaussian i (depth order): q = A dx^2 + 2B dx dy + C dy^2 with dx = p_x - u_i;
 alpha_i = min(alpha_max, o_i exp(-q/2)), zeroed unless q < extent^2 and o_i exp(-q/2) > alpha_min;
+a pixel is "done" at the first Gaussian that would take its transmittance below
+max(min_transmittance, 1e-30): that Gaussian and all later ones get alpha 0 (3DGS's early stop);
 T_i = prod_{j<i} (1 - alpha_j); w_i = alpha_i T_i; out = sum_i w_i f_i; silhouette = sum_i w_i.
 """
 
@@ -49,7 +51,17 @@ def _pair_terms(chunk: TileChunk, m: Tensor, c: Tensor, o: Tensor, s: RenderSett
     q = con[:, None, :, 0] * dx * dx + 2 * con[:, None, :, 1] * dx * dy + con[:, None, :, 2] * dy * dy
     raw = op[:, None, :] * torch.exp(-0.5 * q)
     keep = (q < s.extent_sigma**2) & (raw > s.alpha_min)
-    return torch.where(keep, raw.clamp_max(s.alpha_max), torch.zeros_like(raw))
+    alpha = torch.where(keep, raw.clamp_max(s.alpha_max), torch.zeros_like(raw))
+    return alpha * _not_done(alpha.detach(), s)
+
+
+def _not_done(alpha: Tensor, s: RenderSettings) -> Tensor:  # [Tc, P, K] 1 = blended, 0 = after the early stop
+    """1 for slots blended before the pixel's transmittance would drop below the threshold, else 0.
+
+    The inclusive transmittance of the unmasked alphas is monotone, so the kept slots are a prefix.
+    """
+    log_floor = math.log(max(s.min_transmittance, 1e-30))
+    return (torch.cumsum(torch.log1p(-alpha), dim=2) >= log_floor).to(alpha.dtype)
 
 
 def _local_offsets(chunk: TileChunk, m: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -82,7 +94,8 @@ def _alpha_fast(chunk: TileChunk, m: Tensor, c: Tensor, o: Tensor, s: RenderSett
     falloff = q.reshape(tc, ts * ts, k).clamp_max_(e2 + 1.0).mul_(-0.5).exp_()
     nn_f.threshold_(falloff, math.exp(-0.5 * e2), 0.0)  # q < extent^2
     alpha = nn_f.threshold_(falloff.mul_(o[chunk.gauss][:, None, :]), s.alpha_min, 0.0)
-    return alpha.clamp_max_(s.alpha_max)
+    alpha.clamp_max_(s.alpha_max)
+    return alpha.mul_(_not_done(alpha, s))
 
 
 def _weights(alpha: Tensor) -> tuple[Tensor, Tensor, Tensor]:

@@ -6,6 +6,8 @@ plan, so agreement checks the binning as well as the blending.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
@@ -37,6 +39,8 @@ def composite_dense(
     raw = op[None, :] * torch.exp(-0.5 * q)
     keep = (q < settings.extent_sigma**2) & (raw > settings.alpha_min)
     alpha = torch.where(keep, raw.clamp_max(settings.alpha_max), torch.zeros_like(raw))
+    log_floor = math.log(max(settings.min_transmittance, 1e-30))
+    alpha = alpha * (torch.cumsum(torch.log1p(-alpha.detach()), dim=1) >= log_floor).to(alpha.dtype)
     log1m = torch.log1p(-alpha)
     csum = torch.cumsum(log1m, dim=1)
     w = alpha * torch.exp(csum - log1m)

@@ -1,0 +1,188 @@
+"""Compiled CPU backend: binning, compositing forward and backward in C++ with OpenMP.
+
+The extension (``render/cpu/raster.cpp``) is built with ``torch.utils.cpp_extension`` on first
+use (g++ and ninja; about a minute), cached under ``TORCH_EXTENSIONS_DIR`` (default
+``~/.cache/torch_extensions``) and reused by later runs. The build targets this machine's CPU
+(``-march=native``), so the cache name carries a fingerprint of the CPU. Set ``SGS_SLAM_NO_CPP=1``
+to never build it. Importing this module builds nothing.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import platform
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from sgs_slam_core.errors import BackendUnavailableError
+from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.render.settings import RenderSettings
+
+__all__ = ["composite_cpu", "extension", "is_available", "render_isotropic_cpu", "unavailable_reason"]
+
+log = logging.getLogger(__name__)
+_SOURCE = Path(__file__).with_name("cpu") / "raster.cpp"
+_state: dict[str, Any] = {"module": None, "error": None}
+
+
+def _cpu_fingerprint() -> str:
+    text = platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith(("flags", "model name")):
+                text += line
+    except OSError:
+        pass
+    return hashlib.sha1(text.encode()).hexdigest()[:8]
+
+
+def extension() -> ModuleType:
+    """The compiled module, building it on first call; raises :class:`BackendUnavailableError`."""
+    if _state["module"] is not None:
+        return _state["module"]
+    if _state["error"] is not None:
+        raise BackendUnavailableError(_state["error"])
+    if os.environ.get("SGS_SLAM_NO_CPP"):
+        _state["error"] = "the compiled CPU backend is disabled by SGS_SLAM_NO_CPP"
+        raise BackendUnavailableError(_state["error"])
+    try:
+        from torch.utils.cpp_extension import load  # noqa: PLC0415 - heavy, and only needed here
+
+        log.info("building the compiled CPU renderer (first use on this machine, about a minute)")
+        _state["module"] = load(
+            name=f"sgs_slam_cpu_render_{_cpu_fingerprint()}",
+            sources=[str(_SOURCE)],
+            extra_cflags=["-O3", "-march=native", "-fopenmp", "-fno-math-errno", "-fno-trapping-math"],
+            extra_ldflags=["-fopenmp"],
+            verbose=bool(os.environ.get("SGS_SLAM_VERBOSE_BUILD")),
+        )
+    except Exception as err:
+        _state["error"] = (
+            f"cannot build the compiled CPU renderer ({type(err).__name__}: {str(err).splitlines()[0][:300]}); "
+            "it needs g++ and ninja (pip install ninja); falling back to the torch backend"
+        )
+        raise BackendUnavailableError(_state["error"]) from err
+    return _state["module"]
+
+
+def is_available() -> bool:
+    """True when the extension is (or can be) built; the first call may take a minute."""
+    try:
+        extension()
+    except BackendUnavailableError:
+        return False
+    return True
+
+
+def unavailable_reason() -> str:
+    """Why the backend is unavailable (empty when it works or was never tried)."""
+    return _state["error"] or ""
+
+
+class _CppComposite(torch.autograd.Function):
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any,
+        means2d: Tensor,  # [N, 2]
+        conics: Tensor,  # [N, 3]
+        opacities: Tensor,  # [N]
+        features: Tensor,  # [N, D]
+        radii: Tensor,  # [N] (no grad)
+        depths: Tensor,  # [N] (sort key, no grad)
+        width: int,
+        height: int,
+        settings: RenderSettings,
+    ) -> tuple[Tensor, Tensor]:
+        ext = extension()
+        m, c, o, f = (t.detach().contiguous() for t in (means2d, conics, opacities, features))
+        r = radii.detach().to(m.dtype).contiguous()
+        tile = settings.cpu_tile(width, height)
+        gids, offsets = ext.bin_gaussians(m, r, depths.detach(), width, height, tile)
+        args = (width, height, tile, settings.alpha_min, settings.alpha_max, settings.extent_sigma**2,
+                settings.min_transmittance, torch.get_num_threads())  # fmt: skip
+        img, sil, t_final, count = ext.composite_forward(m, c, o, r, f, gids, offsets, *args)
+        ctx.save_for_backward(m, c, o, r, f, gids, offsets, t_final, count)
+        ctx.args = args
+        return img, sil
+
+    @staticmethod
+    def backward(ctx: Any, grad_img: Tensor, grad_sil: Tensor) -> tuple[Tensor | None, ...]:  # type: ignore[override]
+        m, c, o, r, f, gids, offsets, t_final, count = ctx.saved_tensors
+        grads = extension().composite_backward(
+            m, c, o, r, f, gids, offsets, t_final, count, grad_img, grad_sil, *ctx.args
+        )
+        return grads[:, 0:2], grads[:, 2:5], grads[:, 5], grads[:, 6:], None, None, None, None, None
+
+
+def composite_cpu(
+    means2d: Tensor,  # [N, 2]
+    conics: Tensor,  # [N, 3]
+    opacities: Tensor,  # [N]
+    features: Tensor,  # [N, D]
+    radii: Tensor,  # [N]
+    depths: Tensor,  # [N]
+    width: int,
+    height: int,
+    settings: RenderSettings,
+) -> tuple[Tensor, Tensor]:
+    """``(image [H, W, D], silhouette [H, W])`` by the compiled kernels (same maths as the torch backend)."""
+    return _CppComposite.apply(means2d, conics, opacities, features, radii, depths, width, height, settings)
+
+
+class _CppIsotropicRender(torch.autograd.Function):
+    """Projection, binning and compositing of isotropic Gaussians in two C++ calls (forward, backward)."""
+
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any,
+        means_cam: Tensor,  # [N, 3]
+        scales: Tensor,  # [N]
+        opacities: Tensor,  # [N]
+        features: Tensor,  # [N, D]
+        k: Intrinsics,
+        s: RenderSettings,
+    ) -> tuple[Tensor, Tensor]:
+        ext, threads = extension(), torch.get_num_threads()
+        mc, sc, op = (t.detach().contiguous() for t in (means_cam, scales, opacities))
+        cam = (k.fx, k.fy, k.cx, k.cy, k.width, k.height)
+        m2d, con, rad, dep = ext.project_isotropic(mc, sc, op, *cam, s.near_plane, s.eps2d, s.alpha_min,
+                                                   s.extent_sigma, threads)  # fmt: skip
+        feats = torch.cat([features.detach(), dep[:, None]], dim=1).contiguous()
+        tile = s.cpu_tile(k.width, k.height)
+        gids, offsets = ext.bin_gaussians(m2d, rad, dep, k.width, k.height, tile)
+        args = (k.width, k.height, tile, s.alpha_min, s.alpha_max, s.extent_sigma**2, s.min_transmittance,
+                threads)  # fmt: skip
+        img, sil, t_final, count = ext.composite_forward(m2d, con, op, rad, feats, gids, offsets, *args)
+        ctx.save_for_backward(mc, sc, m2d, con, op, rad, feats, gids, offsets, t_final, count)
+        ctx.args, ctx.cam, ctx.s = args, cam, s
+        return img, sil
+
+    @staticmethod
+    def backward(ctx: Any, grad_img: Tensor, grad_sil: Tensor) -> tuple[Tensor | None, ...]:  # type: ignore[override]
+        mc, sc, m2d, con, op, rad, feats, gids, offsets, t_final, count = ctx.saved_tensors
+        ext, s = extension(), ctx.s
+        g = ext.composite_backward(
+            m2d, con, op, rad, feats, gids, offsets, t_final, count, grad_img, grad_sil, *ctx.args
+        )
+        d = feats.shape[1] - 1
+        g_mc, g_sc = ext.project_isotropic_backward(mc, sc, g[:, 0:2], g[:, 2:5], g[:, 6 + d], *ctx.cam, s.near_plane,
+                                                    s.eps2d, torch.get_num_threads())  # fmt: skip
+        return g_mc, g_sc, g[:, 5], g[:, 6 : 6 + d], None, None
+
+
+def render_isotropic_cpu(
+    means_cam: Tensor,  # [N, 3] camera frame
+    scales: Tensor,  # [N] standard deviations (m)
+    opacities: Tensor,  # [N]
+    features: Tensor,  # [N, D]
+    intrinsics: Intrinsics,
+    settings: RenderSettings,
+) -> tuple[Tensor, Tensor]:
+    """``(image [H, W, D + 1] with depth last, silhouette [H, W])``, fully in the compiled kernels."""
+    return _CppIsotropicRender.apply(means_cam, scales, opacities, features, intrinsics, settings)
