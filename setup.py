@@ -34,6 +34,11 @@ setup(
     entry_points={
         "console_scripts": [
             "sgs-slam = sgs_slam_core.cli:main",
+            "sgs-slam-bag = bags.cli:main",
+            "bag_player = sgs_slam_ros.bag_player:main",
+            "slam_node = sgs_slam_ros.slam_node:main",
+            "tracking_node = sgs_slam_ros.tracking_node:main",
+            "mapping_node = sgs_slam_ros.mapping_node:main",
         ],
     },
 )

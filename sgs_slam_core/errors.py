@@ -10,6 +10,7 @@ __all__ = [
     "BackendUnavailableError",
     "ConfigError",
     "DatasetError",
+    "EditError",
     "FrameError",
     "MapFileError",
     "SgsSlamError",
@@ -35,6 +36,10 @@ class FrameError(SgsSlamError, ValueError):
 
 class DatasetError(SgsSlamError):
     """A dataset folder or file is missing or corrupt; the message names the file."""
+
+
+class EditError(SgsSlamError, ValueError):
+    """A map edit cannot be applied (unknown class, empty selection, bad parameters, nothing to undo)."""
 
 
 class MapFileError(SgsSlamError):

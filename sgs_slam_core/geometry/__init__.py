@@ -13,10 +13,13 @@ from sgs_slam_core.geometry.se3 import (
     so3_log,
     transform_points,
 )
+from sgs_slam_core.geometry.views import look_at, orbit_poses
 
 __all__ = [
     "Intrinsics",
     "backproject",
+    "look_at",
+    "orbit_poses",
     "pixel_grid",
     "quat_multiply",
     "quat_normalize",

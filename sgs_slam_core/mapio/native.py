@@ -1,8 +1,9 @@
 """The native map file: everything needed to resume mapping, written atomically and validated on load.
 
 Contents (a ``torch.save`` dict, loadable with ``weights_only=True``): format tag and version, the
-Gaussian tensors, the label table, the resolved config, the intrinsics, the keyframe poses and the
-estimated trajectory.
+Gaussian tensors, the label table, the resolved config, the intrinsics, the keyframe poses, the
+estimated trajectory, and optionally the images of the most recent keyframes (uint8 colour, uint16
+depth, int32 labels: about 2.8 MB per 640x480 keyframe) so that mapping resumes with its window.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelError, LabelTable
 from sgs_slam_core.mapio.atomic import atomic_write
+from sgs_slam_core.slam.frame_data import CompactFrame
 
 __all__ = ["FORMAT", "VERSION", "MapFile", "load_map", "save_map"]
 
@@ -40,12 +42,41 @@ class MapFile:
     keyframes: list[tuple[int, np.ndarray]] = field(default_factory=list)  # (frame index, c2w [4, 4])
     trajectory: list[tuple[int, int, np.ndarray]] = field(default_factory=list)  # (input frame index, stamp_ns, c2w)
     seen_labels: list[int] = field(default_factory=list)  # class ids observed while mapping (decoding candidates)
+    scene_radius: float | None = None  # m, for pruning huge Gaussians when mapping resumes
+    locked_labels: list[int] = field(default_factory=list)  # classes locked by edits (see slam.edits)
+    keyframe_images: list[CompactFrame] = field(default_factory=list)  # recent keyframes, oldest first
 
 
 def _intrinsics_dict(k: Intrinsics | None) -> dict[str, float] | None:
     if k is None:
         return None
     return {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width, "height": k.height}
+
+
+def _keyframe_dict(kf: CompactFrame) -> dict[str, Any]:
+    return {
+        "index": kf.index,
+        "stamp_ns": kf.stamp_ns,
+        "rgb": torch.from_numpy(kf.rgb),
+        "depth": torch.from_numpy(kf.depth),
+        "labels": None if kf.labels is None else torch.from_numpy(kf.labels),
+        "w2c": torch.from_numpy(kf.w2c),
+    }
+
+
+def _keyframe_from_dict(d: dict[str, Any], k: Intrinsics | None) -> CompactFrame:
+    if k is None:
+        raise ValueError("keyframe images need the map's intrinsics")
+    rgb, depth, labels = d["rgb"].numpy(), d["depth"].numpy(), None if d["labels"] is None else d["labels"].numpy()
+    if (
+        rgb.shape != (k.height, k.width, 3)
+        or depth.shape != k.shape
+        or (labels is not None and labels.shape != k.shape)
+    ):
+        raise ValueError(f"keyframe {d['index']} images do not match the intrinsics ({k.width}x{k.height})")
+    if rgb.dtype != np.uint8 or depth.dtype != np.uint16:
+        raise ValueError(f"keyframe {d['index']} images must be uint8 colour and uint16 depth")
+    return CompactFrame(int(d["index"]), int(d["stamp_ns"]), k, rgb, depth, labels, d["w2c"].numpy())
 
 
 def save_map(path: str | Path, m: MapFile) -> None:
@@ -60,6 +91,9 @@ def save_map(path: str | Path, m: MapFile) -> None:
         "keyframes": [[int(i), torch.as_tensor(p, dtype=torch.float64)] for i, p in m.keyframes],
         "trajectory": [[int(i), int(s), torch.as_tensor(p, dtype=torch.float64)] for i, s, p in m.trajectory],
         "seen_labels": [int(i) for i in m.seen_labels],
+        "scene_radius": m.scene_radius,
+        "locked_labels": [int(i) for i in m.locked_labels],
+        "keyframe_images": [_keyframe_dict(kf) for kf in m.keyframe_images],
     }
     atomic_write(path, lambda f: torch.save(payload, f))
 
@@ -71,7 +105,7 @@ def load_map(path: str | Path, device: torch.device | str = "cpu") -> MapFile:
         raise MapFileError(f"map file {path} does not exist")
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as err:
+    except (RuntimeError, EOFError, OSError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as err:
         raise MapFileError(f"map file {path} is truncated or not a map ({type(err).__name__}: {err})") from err
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise MapFileError(f"{path} is not an SGS-SLAM map (format tag missing)")
@@ -87,9 +121,13 @@ def load_map(path: str | Path, device: torch.device | str = "cpu") -> MapFile:
         keyframes = [(int(i), p.numpy()) for i, p in data["keyframes"]]
         trajectory = [(int(i), int(s), p.numpy()) for i, s, p in data["trajectory"]]
         seen = [int(i) for i in data.get("seen_labels", [])]
-    except (ShapeError, LabelError, TypeError, ValueError, AttributeError) as err:
+        locked = [int(i) for i in data.get("locked_labels", [])]
+        images = [_keyframe_from_dict(d, k) for d in data.get("keyframe_images", [])]
+    except (ShapeError, LabelError, TypeError, ValueError, AttributeError, KeyError) as err:
         raise MapFileError(f"{path}: {err}") from err
     for _, pose in [*keyframes, *((i, p) for i, _, p in trajectory)]:
         if pose.shape != (4, 4):
             raise MapFileError(f"{path}: poses must be 4x4, found {pose.shape}")
-    return MapFile(gaussians, table, dict(data["config"]), k, keyframes, trajectory, seen)
+    radius = data.get("scene_radius")
+    return MapFile(gaussians, table, dict(data["config"]), k, keyframes, trajectory, seen,
+                   float(radius) if radius is not None else None, locked, images)  # fmt: skip

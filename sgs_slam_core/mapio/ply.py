@@ -20,7 +20,7 @@ from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.mapio.atomic import atomic_write
 
-__all__ = ["SH_C0", "read_splat_ply", "write_point_cloud_ply", "write_splat_ply"]
+__all__ = ["SH_C0", "read_splat_ply", "write_map_point_cloud", "write_point_cloud_ply", "write_splat_ply"]
 
 SH_C0 = 0.28209479177387814
 _PLY_TYPES = {
@@ -158,3 +158,21 @@ def write_point_cloud_ply(
     if labels is not None:
         data["label"] = labels
     _write(Path(path), data, ["sgs_slam point cloud"])
+
+
+def write_map_point_cloud(
+    path: str | Path, gaussians: GaussianMap, table: LabelTable, semantic: bool = False, min_opacity: float = 0.5
+) -> int:
+    """The Gaussian centres as a coloured point cloud (colour, or class palette colour with ``semantic``).
+
+    Gaussians below ``min_opacity`` are left out; returns the number of points written.
+    """
+    g = gaussians.detach().to("cpu")
+    keep = (g.opacities >= min_opacity).numpy()
+    labels = g.labels.numpy()[keep]
+    if semantic:
+        colors = table.colorize(labels)
+    else:
+        colors = np.round(g.colors.clamp(0.0, 1.0).numpy()[keep] * 255.0).astype(np.uint8)
+    write_point_cloud_ply(path, g.means.numpy()[keep], colors, labels)
+    return int(keep.sum())

@@ -22,11 +22,11 @@ import torch
 import yaml
 
 from sgs_slam_core.cli.progress import ProgressBar
-from sgs_slam_core.config import config_to_dict, dump_yaml
+from sgs_slam_core.config import dump_yaml
 from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.errors import DatasetError, FrameError
-from sgs_slam_core.mapio import MapFile, save_map, write_splat_ply
+from sgs_slam_core.mapio import save_map, write_splat_ply
 from sgs_slam_core.metrics import ate, write_tum_trajectory
 from sgs_slam_core.render.api import resolve_backend
 from sgs_slam_core.runner.evaluation import EvalOptions, evaluate
@@ -147,9 +147,8 @@ def run_offline(
         writer = csv.DictWriter(f, fieldnames=_CSV_FIELDS)
         writer.writeheader()
         writer.writerows(rows)
-    map_file = MapFile(slam.gaussians, slam.codec.table, config_to_dict(config), slam.intrinsics,
-                       slam.keyframe_poses(), list(zip(frame_indices, stamps, poses, strict=True)),
-                       slam.label_candidates())  # fmt: skip
+    map_file = slam.to_map_file()
+    map_file.trajectory = list(zip(frame_indices, stamps, poses, strict=True))  # dataset frame indices
     save_map(out / "map.sgsmap", map_file)
     write_splat_ply(out / "map.ply", slam.gaussians, slam.codec.table)
 

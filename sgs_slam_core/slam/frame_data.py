@@ -28,6 +28,7 @@ class FrameTensors:
     depth: Tensor  # [H, W] float32 m, 0 = invalid
     labels: Tensor | None  # [H, W] int64
     semantic: Tensor | None  # [H, W, S] float32 target of the semantic channels
+    ignore: Tensor | None = None  # [H, W] bool, pixels left out of every loss and of densification (edit locks)
 
     @staticmethod
     def from_arrays(
@@ -59,8 +60,8 @@ class FrameTensors:
 
     @property
     def valid(self) -> Tensor:  # [H, W] bool
-        """Pixels with a depth measurement."""
-        return self.depth > 0
+        """Pixels with a depth measurement that are not ignored."""
+        return self.depth > 0 if self.ignore is None else (self.depth > 0) & ~self.ignore
 
 
 @dataclass

@@ -42,7 +42,9 @@ def tracking_loss(out: RenderOutput, frame: FrameTensors, s: TrackingSettings, u
     return TrackingLoss(total, count / mask.numel(), residual)
 
 
-def _photometric(pred: Tensor, target: Tensor, ssim_weight: float) -> Tensor:
+def _photometric(pred: Tensor, target: Tensor, ignore: Tensor | None, ssim_weight: float) -> Tensor:
+    if ignore is not None:  # ignored pixels match the prediction: no L1 error and no gradient there
+        target = torch.where(ignore[..., None], pred.detach(), target)
     loss = (pred - target).abs().mean()
     if ssim_weight > 0:
         loss = (1 - ssim_weight) * loss + ssim_weight * (1 - ssim(pred, target, padding="same"))
@@ -50,10 +52,13 @@ def _photometric(pred: Tensor, target: Tensor, ssim_weight: float) -> Tensor:
 
 
 def mapping_loss(out: RenderOutput, frame: FrameTensors, s: MappingSettings, use_semantics: bool) -> Tensor:
-    """w_d mean|D - D_gt| (valid depth) + w_c [(1-a) L1 + a (1 - SSIM)](C) + w_s [same](S), all pixels."""
+    """w_d mean|D - D_gt| (valid depth) + w_c [(1-a) L1 + a (1 - SSIM)](C) + w_s [same](S).
+
+    Colour and semantics count every pixel except ignored ones (edit locks).
+    """
     valid = frame.valid & torch.isfinite(out.depth)
     loss = s.weight_depth * (out.depth - frame.depth).abs()[valid].mean() if bool(valid.any()) else out.depth.sum() * 0
-    loss = loss + s.weight_color * _photometric(out.color, frame.rgb, s.ssim_weight)
+    loss = loss + s.weight_color * _photometric(out.color, frame.rgb, frame.ignore, s.ssim_weight)
     if use_semantics and frame.semantic is not None and s.weight_semantic > 0:
-        loss = loss + s.weight_semantic * _photometric(out.semantic, frame.semantic, s.ssim_weight)
+        loss = loss + s.weight_semantic * _photometric(out.semantic, frame.semantic, frame.ignore, s.ssim_weight)
     return loss

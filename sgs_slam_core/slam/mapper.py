@@ -55,10 +55,14 @@ def map_window(
     scene_radius: float,
     use_semantics: bool,
     rng: np.random.Generator,
+    frozen_labels: frozenset[int] = frozenset(),
 ) -> MapResult:
-    """``s.iterations`` Adam steps (fresh optimiser), each on one frame drawn uniformly from the window."""
+    """``s.iterations`` Adam steps (fresh optimiser), each on one frame drawn uniformly from the window.
+
+    Gaussians of ``frozen_labels`` are left exactly as they are.
+    """
     t0 = time.perf_counter()
-    opt = GaussianOptimizer(gaussians, s)
+    opt = GaussianOptimizer(gaussians, s, frozen_labels)
     pruned, last = 0, float("nan")
     prune_at = set(s.prune_iterations)
     for it in range(s.iterations):

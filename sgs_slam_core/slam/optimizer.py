@@ -16,10 +16,15 @@ class GaussianOptimizer:
 
     ``prune(keep)`` slices parameters *and* Adam moments, so the step after a prune updates the
     surviving Gaussians normally (the reference rebuilt the tensors and lost that step).
+    Gaussians of ``frozen_labels`` get no gradient (so a fresh Adam leaves them bit-identical) and
+    are never pruned.
     """
 
-    def __init__(self, gaussians: GaussianMap, settings: MappingSettings) -> None:
+    def __init__(
+        self, gaussians: GaussianMap, settings: MappingSettings, frozen_labels: frozenset[int] = frozenset()
+    ) -> None:
         self._labels, self._birth = gaussians.labels, gaussians.birth_frame
+        self._frozen_ids = torch.tensor(sorted(frozen_labels), dtype=torch.int64, device=gaussians.device)
         lrs = {
             "means": settings.lr_means,
             "log_scales": settings.lr_scales,
@@ -42,13 +47,27 @@ class GaussianOptimizer:
         """The optimised map, detached."""
         return self.gaussians().detach()
 
+    def frozen(self) -> Tensor | None:  # [N] bool
+        """Rows that must not change, None when nothing is frozen."""
+        if self._frozen_ids.numel() == 0:
+            return None
+        return torch.isin(self._labels, self._frozen_ids)
+
     def step(self) -> None:
-        """One Adam step, then clear gradients."""
+        """One Adam step (frozen rows get zero gradient), then clear gradients."""
+        frozen = self.frozen()
+        if frozen is not None:
+            for p in self.params.values():
+                if p.grad is not None:
+                    p.grad[frozen] = 0
         self.adam.step()
         self.adam.zero_grad(set_to_none=True)
 
     def prune(self, keep: Tensor) -> int:  # keep: [N] bool
-        """Drop Gaussians where ``keep`` is False; returns how many were removed."""
+        """Drop Gaussians where ``keep`` is False (frozen ones stay); returns how many were removed."""
+        frozen = self.frozen()
+        if frozen is not None:
+            keep = keep | frozen
         removed = int((~keep).sum())
         if removed == 0:
             return 0

@@ -2,22 +2,27 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
+from sgs_slam_core.config.loader import config_to_dict
 from sgs_slam_core.config.schema import SlamConfig
+from sgs_slam_core.editing import EditRecord, EditRequest
 from sgs_slam_core.errors import BackendUnavailableError, FrameError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.se3 import se3_inverse
 from sgs_slam_core.labels import LabelTable
+from sgs_slam_core.mapio.native import MapFile
 from sgs_slam_core.render.api import RenderOutput, render
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.densify import densify_mask, gaussians_from_pixels, scene_radius
+from sgs_slam_core.slam.edits import EditLocks
 from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors, resize_arrays
 from sgs_slam_core.slam.guard import TrackingGuard
 from sgs_slam_core.slam.keyframes import Window, is_keyframe, select_window
@@ -25,7 +30,7 @@ from sgs_slam_core.slam.mapper import MapResult, WindowFrame, map_window
 from sgs_slam_core.slam.pose import predict_constant_velocity
 from sgs_slam_core.slam.tracker import TrackResult, track
 
-__all__ = ["Slam", "StepResult", "resolve_device"]
+__all__ = ["MapOutcome", "Slam", "StepResult", "TrackOutcome", "resolve_device"]
 
 
 def resolve_device(name: str) -> torch.device:
@@ -35,6 +40,36 @@ def resolve_device(name: str) -> torch.device:
     if name == "cuda" and not torch.cuda.is_available():
         raise BackendUnavailableError("device 'cuda' requested but torch sees no CUDA GPU")
     return torch.device(name)
+
+
+@dataclass(frozen=True)
+class TrackOutcome:
+    """The pose of one frame (tracked, ground truth, or registered from elsewhere)."""
+
+    index: int
+    stamp_ns: int
+    c2w: np.ndarray  # [4, 4]
+    tracking: TrackResult | None
+    failure_reason: str | None
+    time_s: float
+    frame_data: FrameTensors | None = field(default=None, repr=False, compare=False)  # reused by map()
+
+    @property
+    def failed(self) -> bool:
+        """True when the failure guard rejected the frame."""
+        return self.failure_reason is not None
+
+
+@dataclass(frozen=True)
+class MapOutcome:
+    """What mapping did with one frame."""
+
+    mapping: MapResult | None
+    window: Window | None
+    keyframe: bool
+    added: int
+    time_s: float
+    timings: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -62,6 +97,10 @@ class Slam:
 
     The map frame is the first camera's frame unless ``initial_c2w`` is given. Every frame must
     share the first frame's intrinsics and carry depth; labels are optional per frame.
+
+    Thread safety: :meth:`track` may run beside :meth:`map` (it reads an immutable map snapshot);
+    everything that replaces the map (:meth:`map`, edits, :meth:`load_map`, :meth:`set_map`) is
+    serialised, so an edit is never overwritten by a mapping step that started before it.
     """
 
     def __init__(
@@ -71,11 +110,14 @@ class Slam:
         self.device = resolve_device(config.device)
         self.codec = SemanticCodec(config.semantic, label_table or LabelTable.nyu40())
         self.initial_c2w = np.eye(4) if initial_c2w is None else np.asarray(initial_c2w, dtype=np.float64)
+        self._mutate = threading.RLock()
         self.reset()
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
-        """Forget the map, poses and keyframes (configuration and label table are kept)."""
+        """Forget the map, poses, keyframes and edits (configuration and label table are kept)."""
+        self._lock = threading.RLock()
+        self.edits = EditLocks()
         self.gaussians = GaussianMap.empty(self.codec.num_channels, device=self.device)
         self.intrinsics: Intrinsics | None = None
         self.keyframes: list[CompactFrame] = []
@@ -87,6 +129,7 @@ class Slam:
         self.torch_rng = torch.Generator().manual_seed(self.config.seed)
         self.frames_processed = 0
         self.failures = 0
+        self._resumed_poses: list[np.ndarray] = []  # last two c2w of a loaded map (motion prior)
         self._gt_origin: np.ndarray | None = None
 
     @property
@@ -102,19 +145,25 @@ class Slam:
     # ------------------------------------------------------------------ the loop
     def process(self, frame: Frame) -> StepResult:
         """Track, densify, select keyframes, map, and maybe keep the frame as a keyframe."""
-        self._validate(frame)
-        t_start = time.perf_counter()
-        index = self.frames_processed
-        if frame.labels is not None:
-            self.seen_ids.update(int(i) for i in np.unique(frame.labels))
-        data = FrameTensors.from_frame(frame, self.codec, self.device)
-        data.index = index
-        use_sem = frame.labels is not None
-        timings: dict[str, float] = {}
+        tracked = self.track(frame)
+        mapped = self.map(frame, tracked)
+        timings = {"track": tracked.time_s, **mapped.timings}
+        return StepResult(tracked.index, tracked.stamp_ns, tracked.c2w, tracked.tracking, mapped.mapping, mapped.window,
+                          mapped.keyframe, mapped.added, self.num_gaussians, tracked.failed, tracked.failure_reason,
+                          tracked.time_s, mapped.time_s, timings)  # fmt: skip
 
+    def track(self, frame: Frame) -> TrackOutcome:
+        """Estimate the pose of ``frame`` against the current map (frame 0 gets ``initial_c2w``)."""
+        self._validate(frame)
+        t0 = time.perf_counter()
+        index = self.frames_processed
+        with self._lock:
+            if frame.labels is not None:
+                self.seen_ids.update(int(i) for i in np.unique(frame.labels))
         tracking: TrackResult | None = None
         failure: str | None = None
-        if index == 0:
+        data = None
+        if index == 0 and len(self.gaussians) == 0:
             c2w = self.initial_c2w.copy()
             self._gt_origin = None if frame.gt_c2w is None else frame.gt_c2w.copy()
             self.scene_radius = scene_radius(frame.depth, self.config.mapping.scene_radius_depth_ratio)
@@ -122,39 +171,136 @@ class Slam:
             if frame.gt_c2w is None:
                 raise FrameError("tracking.use_gt_pose is set but the frame has no ground-truth pose")
             c2w = self._gt_in_map_frame(frame.gt_c2w)
+        elif len(self.gaussians) == 0:
+            c2w = self.trajectory[-1][2].copy() if self.trajectory else self.initial_c2w.copy()  # no map yet
         else:
+            data = self._frame_tensors(frame)
             tracking = self._track(data, frame)
             c2w = np.linalg.inv(tracking.w2c)
             failure = self.guard.check(tracking.depth_residual_m, tracking.loss_per_pixel, tracking.valid_fraction)
-        track_time = time.perf_counter() - t_start
-        timings["track"] = track_time
         self.trajectory.append((index, frame.stamp_ns, c2w))
         self.frames_processed += 1
         if failure is not None:
             self.failures += 1
-            return StepResult(index, frame.stamp_ns, c2w, tracking, None, None, False, 0, self.num_gaussians,
-                              True, failure, track_time, 0.0, timings)  # fmt: skip
+        return TrackOutcome(index, frame.stamp_ns, c2w, tracking, failure, time.perf_counter() - t0, data)
 
-        t_map = time.perf_counter()
+    def register(self, frame: Frame, c2w: np.ndarray) -> TrackOutcome:
+        """Accept a pose estimated elsewhere (a separate tracking process) for ``frame``."""
+        self._validate(frame)
+        index = self.frames_processed
+        with self._lock:
+            if frame.labels is not None:
+                self.seen_ids.update(int(i) for i in np.unique(frame.labels))
+        if index == 0:
+            self.scene_radius = scene_radius(frame.depth, self.config.mapping.scene_radius_depth_ratio)
+        c2w = np.asarray(c2w, dtype=np.float64)
+        self.trajectory.append((index, frame.stamp_ns, c2w))
+        self.frames_processed += 1
+        return TrackOutcome(index, frame.stamp_ns, c2w, None, None, 0.0)
+
+    def map(self, frame: Frame, tracked: TrackOutcome) -> MapOutcome:
+        """Densify, select the window, optimise the map, and keep keyframes (nothing on a failed frame)."""
+        if tracked.failed:
+            return MapOutcome(None, None, False, 0, 0.0)
+        with self._mutate:
+            return self._map_frame(frame, tracked)
+
+    def _map_frame(self, frame: Frame, tracked: TrackOutcome) -> MapOutcome:
+        t0 = time.perf_counter()
+        index, c2w = tracked.index, tracked.c2w
+        data = tracked.frame_data or FrameTensors.from_frame(frame, self.codec, self.device)
+        data.ignore = self.edits.ignore_mask(data.labels)  # the locks now: an edit may have come since tracking
+        data.index = index
+        use_sem = frame.labels is not None
+        timings: dict[str, float] = {}
         added = self._densify(data, frame, c2w, index)
-        timings["densify"] = time.perf_counter() - t_map
+        timings["densify"] = time.perf_counter() - t0
         mapping, window = None, None
         if index % self.config.mapping.every == 0 and self.config.mapping.iterations > 0:
             t_sel = time.perf_counter()
             window = self._select_window(data, c2w, frame.labels, index)
             timings["keyframe_selection"] = time.perf_counter() - t_sel
             mapping = self._map(data, c2w, window, use_sem)
-            self.gaussians = mapping.gaussians
+            self._set_gaussians(mapping.gaussians)
         if self.config.mapping.refresh_labels and use_sem:
             self._refresh_labels()
         keyframe = is_keyframe(index, self.config.keyframes.every)
         if keyframe:
             stored = Frame(frame.rgb, frame.depth, frame.intrinsics, frame.labels, frame.stamp_ns, None, index)
             self.keyframes.append(CompactFrame.from_frame(stored, np.linalg.inv(c2w)))
-        map_time = time.perf_counter() - t_map
-        timings["map"] = map_time
-        return StepResult(index, frame.stamp_ns, c2w, tracking, mapping, window, keyframe, added, self.num_gaussians,
-                          False, None, track_time, map_time, timings)  # fmt: skip
+        elapsed = time.perf_counter() - t0
+        timings["map"] = elapsed
+        return MapOutcome(mapping, window, keyframe, added, elapsed, timings)
+
+    # ------------------------------------------------------------------ edits
+    def apply_edit(self, request: EditRequest) -> EditRecord:
+        """Edit the live map; the edited classes stay locked (ignored in input, frozen) until undone."""
+        with self._mutate:
+            edited, record = self.edits.apply(self.gaussians, request, self.codec.table)
+            self._set_gaussians(edited)
+            return record
+
+    def undo_edit(self) -> EditRecord:
+        """Revert the last edit, keeping the mapping done since, and unlock its classes."""
+        with self._mutate:
+            restored, record = self.edits.undo(self.gaussians)
+            self._set_gaussians(restored)
+            return record
+
+    @property
+    def locked_labels(self) -> frozenset[int]:
+        """Classes locked by edits."""
+        return self.edits.locked_labels
+
+    # ------------------------------------------------------------------ map files
+    def load_map(self, saved: MapFile) -> None:
+        """Resume in a saved map: the next frame is tracked against it, starting at its last pose."""
+        if saved.gaussians.num_semantic != self.codec.num_channels:
+            raise FrameError(
+                f"the map has {saved.gaussians.num_semantic} semantic channels but semantic.mode={self.codec.mode} "
+                f"needs {self.codec.num_channels}"
+            )
+        with self._mutate:
+            self._load(saved)
+
+    def _load(self, saved: MapFile) -> None:
+        self.reset()
+        self.edits = EditLocks(frozenset(saved.locked_labels))
+        self.codec = self.codec.with_table(saved.label_table)
+        self._set_gaussians(saved.gaussians.to(self.device))
+        with self._lock:
+            self.seen_ids = {0, *saved.seen_labels}
+        if saved.trajectory:  # frame indices (keyframe ages) go on from the saved run
+            self.initial_c2w = saved.trajectory[-1][2].copy()
+            self.frames_processed = saved.trajectory[-1][0] + 1
+            self._resumed_poses = [c2w.copy() for _, _, c2w in saved.trajectory[-2:]]
+        self.keyframes = list(saved.keyframe_images)
+        if saved.scene_radius is not None:
+            self.scene_radius = saved.scene_radius
+        self.intrinsics = saved.intrinsics
+
+    def to_map_file(self, keyframe_images: int = 16) -> MapFile:
+        """Everything needed to resume, for :func:`~sgs_slam_core.mapio.save_map`.
+
+        ``keyframe_images``: how many of the most recent keyframes keep their images (0 = poses only).
+        """
+        images = self.keyframes[-keyframe_images:] if keyframe_images > 0 else []
+        return MapFile(self.gaussians, self.codec.table, config_to_dict(self.config), self.intrinsics,
+                       self.keyframe_poses(), list(self.trajectory), self.label_candidates(), self.scene_radius,
+                       sorted(self.locked_labels), list(images))  # fmt: skip
+
+    def set_map(self, gaussians: GaussianMap) -> None:
+        """Replace the map (a tracker following a mapper's published map)."""
+        if gaussians.num_semantic != self.codec.num_channels:
+            raise FrameError(
+                f"map has {gaussians.num_semantic} semantic channels, config expects {self.codec.num_channels}"
+            )
+        with self._mutate:
+            self._set_gaussians(gaussians.to(self.device))
+
+    def _set_gaussians(self, gaussians: GaussianMap) -> None:
+        with self._lock:
+            self.gaussians = gaussians
 
     def _validate(self, frame: Frame) -> None:
         if self.intrinsics is None:
@@ -166,6 +312,11 @@ class Slam:
         if self.trajectory and frame.stamp_ns < self.trajectory[-1][1]:
             raise FrameError(f"time stamp went backwards: {frame.stamp_ns} < {self.trajectory[-1][1]} ns")
 
+    def _frame_tensors(self, frame: Frame) -> FrameTensors:
+        data = FrameTensors.from_frame(frame, self.codec, self.device)
+        data.ignore = self.edits.ignore_mask(data.labels)
+        return data
+
     def _gt_in_map_frame(self, gt_c2w: np.ndarray) -> np.ndarray:
         """Ground truth re-expressed so that the first frame's ground truth maps to ``initial_c2w``."""
         if self._gt_origin is None:
@@ -173,15 +324,16 @@ class Slam:
         return self.initial_c2w @ np.linalg.inv(self._gt_origin) @ gt_c2w
 
     def _track(self, data: FrameTensors, frame: Frame) -> TrackResult:
-        prev = self.trajectory[-1][2]
-        prev2 = self.trajectory[-2][2] if len(self.trajectory) > 1 and self.config.tracking.constant_velocity else None
+        poses = [*self._resumed_poses, *(c2w for _, _, c2w in self.trajectory[-2:])]  # a resumed map goes on moving
+        prev = poses[-1] if poses else self.initial_c2w
+        prev2 = poses[-2] if len(poses) > 1 and self.config.tracking.constant_velocity else None
         init_c2w = predict_constant_velocity(prev, prev2)
         use_sem = frame.labels is not None and self.config.tracking.weight_semantic > 0
         return track(self.gaussians, data, np.linalg.inv(init_c2w), self.config.tracking, self.config.render, use_sem)
 
     def _densify(self, data: FrameTensors, frame: Frame, c2w: np.ndarray, index: int) -> int:
         c2w_t = torch.as_tensor(c2w, dtype=torch.float32, device=self.device)
-        if index == 0:
+        if len(self.gaussians) == 0:
             mask = data.valid
         else:
             with torch.no_grad():
@@ -194,10 +346,12 @@ class Slam:
         if scale < 1.0:
             rgb, depth, labels, k = resize_arrays(frame.rgb, frame.depth, frame.labels, frame.intrinsics, scale)
             source = FrameTensors.from_arrays(index, k, rgb, depth, labels, self.codec, self.device)
+            source.ignore = self.edits.ignore_mask(source.labels)
             mask = torch.nn.functional.interpolate(mask[None, None].float(), size=k.shape, mode="nearest")[0, 0] > 0.5
+            mask &= source.valid
         new = gaussians_from_pixels(source, c2w_t, mask, self.codec.num_channels, self.config.densify,
                                     generator=self.torch_rng)  # fmt: skip
-        self.gaussians = self.gaussians.cat(new)
+        self._set_gaussians(self.gaussians.cat(new))
         return len(new)
 
     def _select_window(self, data: FrameTensors, c2w: np.ndarray, labels: np.ndarray | None, index: int) -> Window:
@@ -215,21 +369,30 @@ class Slam:
         for store_index, weight in zip(window.keyframes, window.weights[:-1], strict=True):
             kf = self.keyframes[store_index]
             w2c = torch.as_tensor(kf.w2c, dtype=torch.float32, device=self.device)
-            frames.append(WindowFrame(kf.to_tensors(self.codec, self.device), w2c, weight))
+            kf_data = kf.to_tensors(self.codec, self.device)
+            kf_data.ignore = self.edits.ignore_mask(kf_data.labels)
+            frames.append(WindowFrame(kf_data, w2c, weight))
         w2c_now = torch.as_tensor(np.linalg.inv(c2w), dtype=torch.float32, device=self.device)
         frames.append(WindowFrame(data, w2c_now, window.weights[-1]))
         return map_window(self.gaussians, frames, self.config.mapping, self.config.render, self.scene_radius, use_sem,
-                          self.rng)  # fmt: skip
+                          self.rng, self.locked_labels)  # fmt: skip
 
     def _refresh_labels(self) -> None:
-        if len(self.gaussians):
-            decoded = self.codec.decode(self.gaussians.semantics, self.label_candidates())
-            self.gaussians = self.gaussians.with_tensors(labels=decoded.to(self.device))
+        current = self.gaussians
+        if len(current):
+            decoded = self.codec.decode(current.semantics, self.label_candidates()).to(self.device)
+            locked = self.locked_labels
+            if locked:  # no Gaussian enters or leaves a locked class
+                ids = torch.tensor(sorted(locked), dtype=torch.int64, device=self.device)
+                keep = torch.isin(current.labels, ids) | torch.isin(decoded, ids)
+                decoded = torch.where(keep, current.labels, decoded)
+            self._set_gaussians(current.with_tensors(labels=decoded))
 
     # ------------------------------------------------------------------ queries
     def label_candidates(self) -> list[int]:
         """Class ids a decoded label may take: every id seen in the input so far."""
-        return sorted(self.seen_ids)
+        with self._lock:
+            return sorted(self.seen_ids)
 
     def decode(self, semantic: torch.Tensor) -> torch.Tensor:  # [..., S] -> [...]
         """Class ids from semantic features (rendered or per Gaussian)."""

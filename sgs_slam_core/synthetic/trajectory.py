@@ -6,23 +6,11 @@ from typing import Literal
 
 import numpy as np
 
+from sgs_slam_core.geometry.views import look_at
+
 __all__ = ["TrajectoryKind", "look_at", "make_trajectory"]
 
 TrajectoryKind = Literal["orbit", "walk", "look"]
-WORLD_UP = np.array([0.0, 0.0, 1.0])
-
-
-def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:  # [4, 4]
-    """c2w of a camera at ``eye`` looking at ``target`` with the world z axis up."""
-    forward = target - eye
-    forward = forward / np.linalg.norm(forward)
-    right = np.cross(forward, WORLD_UP)
-    right = right / np.linalg.norm(right)
-    down = np.cross(forward, right)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([right, down, forward], axis=1)
-    pose[:3, 3] = eye
-    return pose
 
 
 def make_trajectory(kind: TrajectoryKind, frames: int, center: np.ndarray, step_deg: float = 1.5) -> list[np.ndarray]:

@@ -498,53 +498,64 @@ void project_backward_all(const Camera& k, int64_t n, const T* mc, const T* sc, 
 
 }  // namespace
 
-// Tile lists: Gaussians stably sorted by depth, appended to every tile their footprint box touches.
-// Returns (gaussian ids [I] int32, tile offsets [T + 1] int64).
-std::vector<torch::Tensor> bin_gaussians(torch::Tensor means2d, torch::Tensor radii, torch::Tensor depths, int64_t width,
-                                         int64_t height, int64_t tile) {
-  TORCH_CHECK(means2d.device().is_cpu() && radii.device().is_cpu() && depths.device().is_cpu(), "CPU tensors only");
-  auto m = means2d.contiguous().to(torch::kFloat64);
-  auto r = radii.contiguous().to(torch::kFloat64);
-  auto d = depths.contiguous().to(torch::kFloat64);
-  const int64_t n = m.size(0);
+// Tile lists: Gaussians sorted by depth (ties by index, as a stable sort), appended to every tile
+// their footprint box touches. Returns (gaussian ids [I] int32, tile offsets [T + 1] int64).
+template <typename T>
+std::vector<torch::Tensor> bin_impl(const T* mp, const T* rp, const T* dp, int64_t n, int64_t width, int64_t height,
+                                    int64_t tile) {
   const int64_t tiles_x = (width + tile - 1) / tile, tiles_y = (height + tile - 1) / tile;
-  const double* mp = m.data_ptr<double>();
-  const double* rp = r.data_ptr<double>();
-  const double* dp = d.data_ptr<double>();
-  std::vector<int64_t> rect(4 * static_cast<size_t>(n));
-  std::vector<int32_t> visible;
-  visible.reserve(static_cast<size_t>(n));
+  std::vector<int32_t> rect(4 * static_cast<size_t>(n));
+  std::vector<uint64_t> keys;
+  keys.reserve(static_cast<size_t>(n));
   for (int64_t g = 0; g < n; ++g) {
     const double u = mp[2 * g], v = mp[2 * g + 1], rad = rp[g];
     if (!(rad > 0) || !std::isfinite(u) || !std::isfinite(v)) continue;
     const double xl = std::ceil(u - rad), xh = std::floor(u + rad), yl = std::ceil(v - rad), yh = std::floor(v + rad);
     if (xl > width - 1 || xh < 0 || yl > height - 1 || yh < 0 || xl > xh || yl > yh) continue;
-    auto clampi = [](double x, double hi) { return static_cast<int64_t>(std::min(std::max(x, 0.0), hi)); };
-    rect[4 * g + 0] = clampi(xl, width - 1) / tile;
-    rect[4 * g + 1] = clampi(xh, width - 1) / tile;
-    rect[4 * g + 2] = clampi(yl, height - 1) / tile;
-    rect[4 * g + 3] = clampi(yh, height - 1) / tile;
-    visible.push_back(static_cast<int32_t>(g));
+    auto clampi = [](double x, double hi) { return static_cast<int32_t>(std::min(std::max(x, 0.0), hi)); };
+    rect[4 * g + 0] = clampi(xl, width - 1) / static_cast<int32_t>(tile);
+    rect[4 * g + 1] = clampi(xh, width - 1) / static_cast<int32_t>(tile);
+    rect[4 * g + 2] = clampi(yl, height - 1) / static_cast<int32_t>(tile);
+    rect[4 * g + 3] = clampi(yh, height - 1) / static_cast<int32_t>(tile);
+    // Visible Gaussians have depth > near > 0, so the float bits sort like the values.
+    const float depth = static_cast<float>(dp[g]);
+    uint32_t bits;
+    std::memcpy(&bits, &depth, sizeof(bits));
+    keys.push_back((static_cast<uint64_t>(bits) << 32) | static_cast<uint64_t>(g));
   }
-  {  // sort by (depth, index): the same order as a stable depth sort, without indirection
-    std::vector<std::pair<double, int32_t>> keyed(visible.size());
-    for (size_t j = 0; j < visible.size(); ++j) keyed[j] = {dp[visible[j]], visible[j]};
-    std::sort(keyed.begin(), keyed.end());
-    for (size_t j = 0; j < keyed.size(); ++j) visible[j] = keyed[j].second;
-  }
+  std::sort(keys.begin(), keys.end());
   auto offsets = torch::zeros({tiles_x * tiles_y + 1}, torch::kInt64);
   int64_t* off = offsets.data_ptr<int64_t>();
-  for (int32_t g : visible)
-    for (int64_t ty = rect[4 * g + 2]; ty <= rect[4 * g + 3]; ++ty)
-      for (int64_t tx = rect[4 * g + 0]; tx <= rect[4 * g + 1]; ++tx) off[ty * tiles_x + tx + 1] += 1;
+  for (uint64_t key : keys) {
+    const int32_t* r = &rect[4 * (key & 0xffffffffu)];
+    for (int64_t ty = r[2]; ty <= r[3]; ++ty)
+      for (int64_t tx = r[0]; tx <= r[1]; ++tx) off[ty * tiles_x + tx + 1] += 1;
+  }
   for (int64_t t = 0; t < tiles_x * tiles_y; ++t) off[t + 1] += off[t];
   auto gids = torch::empty({off[tiles_x * tiles_y]}, torch::kInt32);
   int32_t* gp = gids.data_ptr<int32_t>();
   std::vector<int64_t> cursor(off, off + tiles_x * tiles_y);
-  for (int32_t g : visible)
-    for (int64_t ty = rect[4 * g + 2]; ty <= rect[4 * g + 3]; ++ty)
-      for (int64_t tx = rect[4 * g + 0]; tx <= rect[4 * g + 1]; ++tx) gp[cursor[ty * tiles_x + tx]++] = g;
+  for (uint64_t key : keys) {
+    const int32_t g = static_cast<int32_t>(key & 0xffffffffu);
+    const int32_t* r = &rect[4 * g];
+    for (int64_t ty = r[2]; ty <= r[3]; ++ty)
+      for (int64_t tx = r[0]; tx <= r[1]; ++tx) gp[cursor[ty * tiles_x + tx]++] = g;
+  }
   return {gids, offsets};
+}
+
+std::vector<torch::Tensor> bin_gaussians(torch::Tensor means2d, torch::Tensor radii, torch::Tensor depths, int64_t width,
+                                         int64_t height, int64_t tile) {
+  TORCH_CHECK(means2d.device().is_cpu() && radii.device().is_cpu() && depths.device().is_cpu(), "CPU tensors only");
+  auto m = means2d.contiguous();
+  auto r = radii.contiguous().to(m.scalar_type());
+  auto d = depths.contiguous().to(m.scalar_type());
+  std::vector<torch::Tensor> out;
+  AT_DISPATCH_FLOATING_TYPES(m.scalar_type(), "bin_gaussians", [&] {
+    out = bin_impl<scalar_t>(m.data_ptr<scalar_t>(), r.data_ptr<scalar_t>(), d.data_ptr<scalar_t>(), m.size(0), width,
+                             height, tile);
+  });
+  return out;
 }
 
 // (image [H, W, D], silhouette [H, W], final transmittance [H, W], blended slots [H, W] int32)
@@ -641,10 +652,12 @@ std::vector<torch::Tensor> project_isotropic_backward(torch::Tensor means_cam, t
   return {g_mc, g_sc};
 }
 
+// The GIL is released while the kernels run, so tracking, mapping and rendering threads overlap.
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  m.def("project_isotropic", &project_isotropic, "EWA projection of isotropic Gaussians");
-  m.def("project_isotropic_backward", &project_isotropic_backward, "gradients of project_isotropic");
-  m.def("bin_gaussians", &bin_gaussians, "tile lists sorted by depth");
-  m.def("composite_forward", &composite_forward, "front-to-back compositing");
-  m.def("composite_backward", &composite_backward, "gradients of composite_forward per Gaussian");
+  using release = py::call_guard<py::gil_scoped_release>;
+  m.def("project_isotropic", &project_isotropic, release(), "EWA projection of isotropic Gaussians");
+  m.def("project_isotropic_backward", &project_isotropic_backward, release(), "gradients of project_isotropic");
+  m.def("bin_gaussians", &bin_gaussians, release(), "tile lists sorted by depth");
+  m.def("composite_forward", &composite_forward, release(), "front-to-back compositing");
+  m.def("composite_backward", &composite_backward, release(), "gradients of composite_forward per Gaussian");
 }

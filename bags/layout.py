@@ -1,0 +1,22 @@
+"""Topic names and frame ids of the bags we write (names users know from realsense-ros)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["CAMERA_FRAME", "MAP_FRAME", "BagTopics"]
+
+CAMERA_FRAME = "camera_color_optical_frame"
+MAP_FRAME = "map"
+
+
+@dataclass(frozen=True)
+class BagTopics:
+    """Where each stream lives in a bag (override for bags recorded elsewhere)."""
+
+    color: str = "/camera/color/image_raw"
+    camera_info: str = "/camera/color/camera_info"
+    depth: str = "/camera/depth/image_raw"
+    semantic: str = "/camera/semantic/image_raw"
+    pose: str = "/camera/pose"
+    clock: str = "/clock"

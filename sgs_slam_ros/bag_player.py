@@ -1,0 +1,248 @@
+"""``bag_player``: replay an MCAP bag into ROS topics (ros2 bag play is not on PyPI).
+
+Publishes every topic's raw CDR payloads (no re-serialisation) with the QoS recorded in the bag
+(reliable by default) and ``/clock`` from the bag (or from log times with ``--clock``). Options: a
+rate factor, ``--loop``, a start offset, and ``--lockstep``, which waits for the SLAM pose of each
+colour frame (by header stamp) before publishing the next one, so a replay drops nothing and is
+deterministic::
+
+    bag_player scene0000_00_bag --lockstep --ros-args -r __ns:=/
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import rclpy
+import yaml
+from geometry_msgs.msg import PoseStamped
+from mcap.reader import make_reader
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import remove_ros_args
+from rosgraph_msgs.msg import Clock
+
+from bags.errors import BagError
+from bags.layout import BagTopics
+from bags.reader import _READ_ERRORS, _header_stamp, bag_file
+from msg_adapters import stamp_to_ns
+
+__all__ = ["BagPlayer", "PlayStats", "main"]
+
+
+@dataclass
+class PlayStats:
+    """What a replay did."""
+
+    messages: int = 0
+    frames: int = 0
+    poses_received: int = 0
+    lockstep_timeouts: int = 0
+
+
+def _message_class(type_name: str) -> type:
+    pkg, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+
+
+def _recorded_qos(bag: Path) -> dict[str, QoSProfile]:
+    """Offered QoS per topic from a rosbag2 metadata.yaml (reliable / volatile when unknown)."""
+    meta = (bag if bag.is_dir() else bag.parent) / "metadata.yaml"
+    out: dict[str, QoSProfile] = {}
+    if not meta.is_file():
+        return out
+    info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
+    for entry in info.get("topics_with_message_count", []):
+        meta_topic = entry.get("topic_metadata", {})
+        profiles = meta_topic.get("offered_qos_profiles") or []
+        profile = profiles[0] if isinstance(profiles, list) and profiles else {}
+        reliability = str(profile.get("reliability", "reliable")).lower() if isinstance(profile, dict) else "reliable"
+        durability = str(profile.get("durability", "volatile")).lower() if isinstance(profile, dict) else "volatile"
+        out[meta_topic.get("name", "")] = QoSProfile(
+            depth=100,
+            history=HistoryPolicy.KEEP_LAST,
+            reliability=ReliabilityPolicy.BEST_EFFORT if "best" in reliability else ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL if "transient" in durability else DurabilityPolicy.VOLATILE,
+        )
+    return out
+
+
+class BagPlayer(Node):
+    """Publishes a bag's messages; :meth:`play` runs the replay (call it outside the executor)."""
+
+    def __init__(
+        self,
+        bag: str | Path,
+        rate: float = 1.0,
+        loop: bool = False,
+        start_offset_s: float = 0.0,
+        lockstep: bool = False,
+        pose_topic: str = "/tracking_node/pose",
+        lockstep_timeout_s: float = 60.0,
+        clock: bool = False,
+        topics: BagTopics = BagTopics(),  # noqa: B008 - immutable default
+        **kwargs: Any,
+    ) -> None:
+        super().__init__("bag_player", **kwargs)
+        if not rate > 0:
+            raise ValueError(f"rate must be > 0, got {rate}")
+        self.file = bag_file(Path(bag))
+        self.rate, self.loop, self.start_offset_ns = rate, loop, round(start_offset_s * 1e9)
+        self.lockstep, self.lockstep_timeout_s, self.synth_clock = lockstep, lockstep_timeout_s, clock
+        self.topics = topics
+        self.stats = PlayStats()
+        self._stop = threading.Event()
+        self._poses: set[int] = set()
+        self._pose_cv = threading.Condition()
+        qos = _recorded_qos(Path(bag))
+        self._pubs: dict[str, Any] = {}
+        try:
+            with self.file.open("rb") as f:
+                summary = make_reader(f).get_summary()
+        except _READ_ERRORS as err:
+            raise BagError(f"{self.file} is corrupt or truncated ({type(err).__name__}: {err})") from err
+        if summary is None:
+            raise BagError(f"{self.file} has no summary section (truncated?)")
+        for channel in summary.channels.values():
+            schema = summary.schemas[channel.schema_id]
+            profile = qos.get(channel.topic, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+            self._pubs[channel.topic] = self.create_publisher(_message_class(schema.name), channel.topic, profile)
+        self._clock_pub = self.create_publisher(Clock, "/clock", 10) if clock and "/clock" not in self._pubs else None
+        if lockstep:
+            self.create_subscription(PoseStamped, pose_topic, self._on_pose, 100)
+        self.get_logger().info(f"playing {self.file} ({len(self._pubs)} topics{', lockstep' if lockstep else ''})")
+
+    def _on_pose(self, msg: PoseStamped) -> None:
+        with self._pose_cv:
+            self._poses.add(stamp_to_ns(msg.header.stamp))
+            self.stats.poses_received += 1
+            self._pose_cv.notify_all()
+
+    def stop(self) -> None:
+        """Make :meth:`play` return soon."""
+        self._stop.set()
+        with self._pose_cv:
+            self._pose_cv.notify_all()
+
+    def wait_for_subscribers(self, timeout_s: float = 10.0) -> bool:
+        """Block until the colour topic has a subscriber (so no frame is published into the void)."""
+        end = time.monotonic() + timeout_s
+        pub = self._pubs.get(self.topics.color)
+        while pub is not None and pub.get_subscription_count() == 0:
+            if time.monotonic() > end or self._stop.is_set():
+                return False
+            time.sleep(0.05)
+        return True
+
+    def _messages(self) -> Iterator[tuple[str, int, bytes]]:
+        with self.file.open("rb") as f:
+            reader = make_reader(f)
+            start = None
+            try:
+                for _, channel, message in reader.iter_messages(log_time_order=True):
+                    start = message.log_time if start is None else start
+                    if message.log_time - start >= self.start_offset_ns:
+                        yield channel.topic, message.log_time, message.data
+            except _READ_ERRORS as err:
+                raise BagError(f"{self.file} is corrupt or truncated ({type(err).__name__}: {err})") from err
+
+    def play(self) -> PlayStats:
+        """Replay once (or until stopped with ``loop``); returns counters."""
+        while True:
+            self._play_once()
+            if not self.loop or self._stop.is_set():
+                return self.stats
+
+    def _play_once(self) -> None:
+        wall0 = bag0 = None
+        pending_frame: int | None = None  # lockstep: the colour frame whose pose we still wait for
+        for topic, log_time, data in self._messages():
+            if self._stop.is_set():
+                return
+            if pending_frame is not None and topic == self.topics.color:  # wait before the next frame starts
+                self._wait_pose(pending_frame)
+                pending_frame = None
+            if not self.lockstep:
+                wall0, bag0 = (time.monotonic(), log_time) if wall0 is None else (wall0, bag0)
+                delay = (log_time - bag0) / 1e9 / self.rate - (time.monotonic() - wall0)
+                if delay > 0 and self._stop.wait(delay):
+                    return
+            if self._clock_pub is not None:
+                self._clock_pub.publish(Clock(clock=rclpy.time.Time(nanoseconds=log_time).to_msg()))
+            self._pubs[topic].publish(data)
+            self.stats.messages += 1
+            if topic == self.topics.color:
+                self.stats.frames += 1
+                if self.lockstep:
+                    pending_frame = _header_stamp(data)
+        if pending_frame is not None:
+            self._wait_pose(pending_frame)
+
+    def _wait_pose(self, stamp_ns: int) -> None:
+        with self._pose_cv:
+            ok = self._pose_cv.wait_for(lambda: stamp_ns in self._poses or self._stop.is_set(), self.lockstep_timeout_s)
+        if not ok:
+            self.stats.lockstep_timeouts += 1
+            self.get_logger().warn(
+                f"no pose for the frame at {stamp_ns} ns within {self.lockstep_timeout_s} s; going on"
+            )
+
+
+def _parse(argv: Sequence[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="bag_player", description=__doc__.splitlines()[0])
+    p.add_argument("bag", type=Path, help="rosbag2 folder or .mcap file")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor")
+    p.add_argument("--loop", action="store_true", help="start again at the end")
+    p.add_argument("--start", type=float, default=0.0, help="skip the first S seconds")
+    p.add_argument("--lockstep", action="store_true", help="wait for the SLAM pose of each frame")
+    p.add_argument("--pose-topic", default="/tracking_node/pose", help="pose topic for --lockstep")
+    p.add_argument("--timeout", type=float, default=60.0, help="seconds to wait for a pose in --lockstep")
+    p.add_argument("--clock", action="store_true", help="publish /clock from log times (if the bag has none)")
+    return p.parse_args(argv)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``bag_player``; Ctrl-C stops cleanly."""
+    argv = list(sys.argv if args is None else args)
+    opts = _parse(remove_ros_args(argv)[1:])
+    rclpy.init(args=argv)
+    executor = MultiThreadedExecutor(num_threads=2)
+    player = None
+    try:
+        player = BagPlayer(opts.bag, opts.rate, opts.loop, opts.start, opts.lockstep, opts.pose_topic, opts.timeout,
+                           opts.clock)  # fmt: skip
+        executor.add_node(player)
+        spinner = threading.Thread(target=executor.spin, daemon=True)
+        spinner.start()
+        if opts.lockstep and not player.wait_for_subscribers(30.0):
+            player.get_logger().warn("nobody subscribes to the colour topic yet; playing anyway")
+        stats = player.play()
+        player.get_logger().info(
+            f"done: {stats.frames} frames, {stats.messages} messages, {stats.lockstep_timeouts} timeouts"
+        )
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (BagError, ValueError) as err:
+        print(f"bag_player: error: {err}", file=sys.stderr)
+        return 1
+    finally:
+        if player is not None:
+            player.stop()
+        executor.shutdown()
+        if player is not None:
+            player.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

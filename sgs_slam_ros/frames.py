@@ -1,0 +1,151 @@
+"""Assemble synchronised RGB, depth, labels and camera_info messages into core Frames.
+
+Bad input never raises out of a callback: each cause is logged once (with a running count),
+counted for /diagnostics, and the frame is dropped.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from msg_adapters import (
+    AdapterError,
+    ApproximateSync,
+    camera_info_to_intrinsics,
+    depth_from_image,
+    labels_from_image,
+    rgb_from_image,
+    stamp_to_ns,
+)
+from sgs_slam_core.errors import SgsSlamError
+from sgs_slam_core.frame import Frame
+from sgs_slam_core.geometry.camera import Intrinsics
+
+__all__ = ["FrameAssembler"]
+
+RGB, DEPTH, SEMANTIC = 0, 1, 2
+
+
+class _RejectedError(Exception):
+    """A synchronised set that cannot become a Frame (internal: turned into a counted rejection)."""
+
+    def __init__(self, cause: str, detail: str = "") -> None:
+        super().__init__(cause)
+        self.cause, self.detail = cause, detail
+
+
+class FrameAssembler:
+    """Turns incoming messages into Frames via an approximate-time synchroniser."""
+
+    def __init__(
+        self,
+        use_semantics: bool,
+        queue_size: int,
+        slop_ns: int,
+        depth_scale: float,
+        on_frame: Callable[[Frame], None],
+        log: Callable[[str], None],
+    ) -> None:
+        self.use_semantics = use_semantics
+        self.depth_scale = depth_scale
+        self.on_frame, self.log = on_frame, log
+        self.sync = ApproximateSync(3 if use_semantics else 2, queue_size, slop_ns)
+        self.intrinsics: Intrinsics | None = None
+        self.last_stamp_ns: int | None = None
+        self.rejected: Counter[str] = Counter()
+        self.received: Counter[str] = Counter()
+        self._logged: set[str] = set()
+        self._lock = threading.Lock()
+        self._waiting: list[tuple[int, list[Any]]] = []  # synchronised sets that arrived before any camera_info
+        self._queue_size = queue_size
+
+    def reject(self, cause: str, detail: str = "") -> None:
+        """Count a dropped input; log the first time this cause occurs."""
+        self.rejected[cause] += 1
+        if cause not in self._logged:
+            self._logged.add(cause)
+            self.log(f"dropping input: {cause}{': ' + detail if detail else ''} (counted in /diagnostics, logged once)")
+
+    def camera_info(self, msg: Any) -> None:
+        """Remember the latest intrinsics (assumed to stay valid until the next camera_info)."""
+        self.received["camera_info"] += 1
+        try:
+            k, warnings = camera_info_to_intrinsics(msg)
+        except AdapterError as err:
+            self.reject("bad camera_info", str(err))
+            return
+        for text in warnings:
+            if text not in self._logged:
+                self._logged.add(text)
+                self.log(text)
+        self.intrinsics = k
+        with self._lock:
+            waiting, self._waiting = self._waiting, []
+        for stamp_ns, msgs in waiting:
+            self._assemble(stamp_ns, msgs)
+
+    def image(self, index: int, msg: Any) -> None:
+        """An rgb (0), depth (1) or semantic (2) image."""
+        self.received[("rgb", "depth", "semantic")[index]] += 1
+        with self._lock:
+            matched = self.sync.push(index, stamp_to_ns(msg.header.stamp), msg)
+        if matched is not None:
+            self._assemble(*matched)
+
+    def _assemble(self, stamp_ns: int, msgs: list[Any]) -> None:
+        if self.intrinsics is None:  # topics arrive in any order: hold the set until camera_info comes
+            with self._lock:
+                self._waiting.append((stamp_ns, msgs))
+                overflow = len(self._waiting) > self._queue_size
+                if overflow:
+                    self._waiting.pop(0)
+            if overflow:
+                self.reject("no camera_info yet", "waiting for rgb/camera_info")
+            return
+        try:
+            frame = self._build(stamp_ns, msgs, self.intrinsics)
+        except _RejectedError as rejected:
+            self.reject(rejected.cause, rejected.detail)
+            return
+        self.last_stamp_ns = stamp_ns
+        self.on_frame(frame)
+
+    def _build(self, stamp_ns: int, msgs: list[Any], k: Intrinsics) -> Frame:
+        """The Frame of one synchronised set; raises :class:`_RejectedError` naming the cause."""
+        if self.last_stamp_ns is not None and stamp_ns < self.last_stamp_ns:
+            raise _RejectedError("stamps went backwards", f"{stamp_ns} < {self.last_stamp_ns} ns")
+        try:
+            rgb = rgb_from_image(msgs[RGB])
+            depth = depth_from_image(msgs[DEPTH], self.depth_scale)
+            labels = labels_from_image(msgs[SEMANTIC]) if self.use_semantics else None
+        except AdapterError as err:
+            raise _RejectedError("wrong encoding or bad image", str(err)) from err
+        shapes = {
+            "rgb": rgb.shape[:2],
+            "depth": depth.shape,
+            **({"semantic": labels.shape} if labels is not None else {}),
+        }
+        if len(set(shapes.values())) > 1:
+            raise _RejectedError("image sizes differ", ", ".join(f"{n} {v[1]}x{v[0]}" for n, v in shapes.items()))
+        if rgb.shape[:2] != k.shape:
+            raise _RejectedError(
+                "camera_info does not match the images", f"{k.width}x{k.height} vs {rgb.shape[1]}x{rgb.shape[0]}"
+            )
+        if not np.any(depth > 0):
+            raise _RejectedError("depth image has no valid pixel")
+        try:
+            return Frame(rgb=rgb, depth=depth, intrinsics=k, labels=labels, stamp_ns=stamp_ns)
+        except SgsSlamError as err:
+            raise _RejectedError("invalid frame", str(err)) from err
+
+    def reset(self) -> None:
+        """Forget queued messages and the last stamp (after a SLAM reset)."""
+        with self._lock:
+            self.sync.clear()
+            self._waiting.clear()
+        self.last_stamp_ns = None

@@ -1,0 +1,241 @@
+"""The processing engine behind the nodes: a tracking thread and a mapping thread around core ``Slam``.
+
+ROS callbacks only convert and hand over frames; the work happens on two worker threads so
+executors stay responsive. Live (default): only the newest pending frame and the newest pending
+mapping job are kept; replaced ones are counted as drops, and tracking of the next frame overlaps
+with mapping of the previous one (the map object is immutable, so the tracker reads a consistent
+snapshot). Lockstep: every frame is kept and frame t is tracked only after frame t-1 is mapped
+(or, with a separate mapping process, after its map for frame t-1 has arrived).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sgs_slam_core.errors import SgsSlamError
+from sgs_slam_core.frame import Frame
+from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
+
+__all__ = ["MapJob", "PipelineStats", "SlamPipeline"]
+
+
+@dataclass
+class MapJob:
+    """A frame to map, with its tracked outcome or a pose from another process."""
+
+    frame: Frame
+    tracked: TrackOutcome | None = None
+    c2w: np.ndarray | None = None  # registered when ``tracked`` is None
+
+
+@dataclass
+class PipelineStats:
+    """Counters for /diagnostics."""
+
+    frames_in: int = 0
+    tracked: int = 0
+    mapped: int = 0
+    dropped_frames: int = 0  # replaced before tracking (live mode) or arriving while paused
+    dropped_jobs: int = 0  # mapping jobs replaced before mapping (live mode)
+    tracking_failures: int = 0
+    errors: int = 0
+    last_error: str = ""
+    latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=50))
+
+
+class SlamPipeline:
+    """Feeds frames to ``slam`` on worker threads and reports poses and mapped frames to listeners."""
+
+    def __init__(
+        self,
+        slam: Slam,
+        lockstep: bool,
+        track: bool = True,
+        map: bool = True,
+        log: Callable[[str], None] = print,
+        ready_to_track: Callable[[int], bool] | None = None,
+    ) -> None:
+        self.slam, self.lockstep, self.log = slam, lockstep, log
+        self.track_enabled, self.map_enabled = track, map
+        self.ready_to_track = ready_to_track  # extra lockstep condition (e.g. a remote map has caught up)
+        self.stats = PipelineStats()
+        self.pose_listeners: list[Callable[[Frame, TrackOutcome], None]] = []
+        self.map_listeners: list[Callable[[Frame, TrackOutcome, MapOutcome], None]] = []
+        self.paused = False
+        self._frames: deque[tuple[float, Frame]] = deque()
+        self._jobs: deque[MapJob] = deque()
+        self._cv = threading.Condition()
+        self._busy = {"track": False, "map": False}
+        self._running = True
+        self._threads = []
+        if track:
+            self._threads.append(threading.Thread(target=self._track_loop, name="sgs-track", daemon=True))
+        if map:
+            self._threads.append(threading.Thread(target=self._map_loop, name="sgs-map", daemon=True))
+        for t in self._threads:
+            t.start()
+
+    # ------------------------------------------------------------------ input
+    def submit_frame(self, frame: Frame, received_at: float) -> None:
+        """A synchronised frame from the sensors (called from ROS callbacks)."""
+        with self._cv:
+            self.stats.frames_in += 1
+            if self.paused:
+                self.stats.dropped_frames += 1
+                return
+            if not self.lockstep and self._frames:
+                self._frames.clear()
+                self.stats.dropped_frames += 1
+            self._frames.append((received_at, frame))
+            self._cv.notify_all()
+
+    def submit_job(self, job: MapJob) -> None:
+        """A frame to map (from the tracking thread, or with a pose from another process)."""
+        with self._cv:
+            if self.paused:
+                self.stats.dropped_frames += 1
+                return
+            if not self.lockstep and self._jobs:
+                self._jobs.clear()
+                self.stats.dropped_jobs += 1
+            self._jobs.append(job)
+            self._cv.notify_all()
+
+    # ------------------------------------------------------------------ workers
+    def _mapping_idle(self) -> bool:
+        return not self.map_enabled or (not self._jobs and not self._busy["map"])
+
+    def _track_loop(self) -> None:
+        while True:
+            with self._cv:
+                self._cv.wait_for(lambda: not self._running or (self._frames and self._can_track()), timeout=0.5)
+                if not self._running:
+                    return
+                if not self._frames or not self._can_track():
+                    continue
+                received_at, frame = self._frames.popleft()
+                self._busy["track"] = True
+            try:
+                outcome = self.slam.track(frame)
+            except Exception as err:
+                self._error("tracking", err)
+                outcome = None
+            with self._cv:
+                self._busy["track"] = False
+                if outcome is not None:
+                    self.stats.tracked += 1
+                    self.stats.tracking_failures += int(outcome.failed)
+                    self.stats.latency_s.append(time.monotonic() - received_at)
+                self._cv.notify_all()
+            if outcome is None:
+                continue
+            for listener in self.pose_listeners:
+                listener(frame, outcome)
+            if self.map_enabled:
+                self.submit_job(MapJob(frame, outcome))
+
+    def _can_track(self) -> bool:
+        if not self.lockstep:
+            return True
+        if self.map_enabled and not self._mapping_idle():
+            return False
+        return self.ready_to_track is None or self.ready_to_track(self.slam.frames_processed)
+
+    def _map_loop(self) -> None:
+        while True:
+            with self._cv:
+                self._cv.wait_for(lambda: not self._running or self._jobs, timeout=0.5)
+                if not self._running:
+                    return
+                if not self._jobs:
+                    continue
+                job = self._jobs.popleft()
+                self._busy["map"] = True
+            result = None
+            try:
+                tracked = job.tracked or self.slam.register(job.frame, job.c2w)
+                result = self.slam.map(job.frame, tracked)
+            except Exception as err:
+                self._error("mapping", err)
+            with self._cv:
+                self._busy["map"] = False
+                self.stats.mapped += int(result is not None)
+                self._cv.notify_all()
+            if result is not None:
+                for listener in self.map_listeners:
+                    listener(job.frame, tracked, result)
+
+    def _error(self, stage: str, err: Exception) -> None:
+        self.stats.errors += 1
+        self.stats.last_error = f"{stage}: {type(err).__name__}: {err}"
+        detail = "" if isinstance(err, SgsSlamError) else "\n" + traceback.format_exc()
+        self.log(f"{stage} failed on a frame, which is skipped: {err}{detail}")
+
+    # ------------------------------------------------------------------ control
+    def idle(self) -> bool:
+        """Nothing queued and no worker busy."""
+        with self._cv:
+            return not self._frames and not self._jobs and not any(self._busy.values())
+
+    def wait_idle(self, timeout: float) -> bool:
+        """Block until idle (or the timeout); True when idle."""
+        with self._cv:
+            return self._cv.wait_for(
+                lambda: not self._frames and not self._jobs and not any(self._busy.values()), timeout=timeout
+            )
+
+    def pause(self, paused: bool) -> None:
+        """Stop (or resume) accepting frames; queued work is dropped when pausing."""
+        with self._cv:
+            self.paused = paused
+            if paused:
+                self.stats.dropped_frames += len(self._frames)
+                self._frames.clear()
+            self._cv.notify_all()
+
+    def reset(self, timeout: float = 30.0) -> bool:
+        """Drop queued work, wait for the workers, and reset the SLAM state; False on timeout."""
+        with self._cv:
+            self._frames.clear()
+            self._jobs.clear()
+            if not self._cv.wait_for(lambda: not any(self._busy.values()), timeout=timeout):
+                return False
+            self.slam.reset()
+            self._cv.notify_all()
+        return True
+
+    def exclusive(self, timeout: float = 30.0) -> _Exclusive:
+        """Context manager: workers idle and blocked while the body runs (save/load/edit the map)."""
+        return _Exclusive(self, timeout)
+
+    def shutdown(self) -> None:
+        """Stop the worker threads."""
+        with self._cv:
+            self._running = False
+            self._cv.notify_all()
+        for t in self._threads:
+            t.join(timeout=5.0)
+
+
+class _Exclusive:
+    def __init__(self, pipeline: SlamPipeline, timeout: float) -> None:
+        self.p, self.timeout = pipeline, timeout
+
+    def __enter__(self) -> SlamPipeline:
+        cv = self.p._cv
+        cv.acquire()
+        if not cv.wait_for(lambda: not any(self.p._busy.values()), timeout=self.timeout):
+            cv.release()
+            raise TimeoutError("SLAM workers did not become idle")
+        return self.p
+
+    def __exit__(self, *exc: object) -> None:
+        self.p._cv.notify_all()
+        self.p._cv.release()

@@ -1,0 +1,86 @@
+"""In-process rclpy helpers: a per-test Context and a feeder that plays a dataset into the nodes."""
+
+from __future__ import annotations
+
+import random
+import threading
+import time
+from collections.abc import Callable
+
+import rclpy
+from geometry_msgs.msg import PoseStamped
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image
+
+from msg_adapters import stamp_to_ns
+from sgs_slam_core.frame import Frame
+from sgs_slam_ros.messages import camera_info_msg, image_msg
+
+FAST = ["tracking.iterations=15", "mapping.iterations=8"]
+
+
+def node_params(**extra: object) -> list[Parameter]:
+    values = {"preset": "synthetic", "overrides": FAST, "lockstep": True, "input_qos": "reliable_all",
+              "render_rate_hz": 2.0, "points_rate_hz": 2.0, "gaussians_rate_hz": 0.0} | extra  # fmt: skip
+    return [Parameter(k, value=v) for k, v in values.items()]
+
+
+def new_context(domain_id: int | None = None) -> Context:
+    ctx = Context()
+    domain = random.randint(1, 100) if domain_id is None else domain_id
+    rclpy.init(context=ctx, domain_id=domain, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    return ctx
+
+
+def wait_for(predicate: Callable[[], bool], timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+class Spinner:
+    """A MultiThreadedExecutor spinning the given nodes in a background thread."""
+
+    def __init__(self, ctx: Context, nodes: list[Node]) -> None:
+        self.executor = MultiThreadedExecutor(num_threads=4, context=ctx)
+        for n in nodes:
+            self.executor.add_node(n)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def stop(self) -> None:
+        self.executor.shutdown()
+        self.thread.join(timeout=5)
+
+
+class Feeder(Node):
+    """Publishes frames like a camera driver and records what the SLAM nodes publish."""
+
+    def __init__(self, ctx: Context, pose_topic: str = "/tracking_node/pose") -> None:
+        super().__init__("feeder", context=ctx)
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_ALL)
+        self.pubs = {t: self.create_publisher(Image, t, qos) for t in ("/rgb/image", "/depth/image", "/semantic/image")}
+        self.info_pub = self.create_publisher(CameraInfo, "/rgb/camera_info", qos)
+        self.poses: dict[int, PoseStamped] = {}
+        self.create_subscription(
+            PoseStamped, pose_topic, lambda m: self.poses.__setitem__(stamp_to_ns(m.header.stamp), m), 50
+        )
+
+    def connected(self, subscribers: int = 1) -> bool:
+        return all(p.get_subscription_count() >= subscribers for p in self.pubs.values())
+
+    def publish(self, frame: Frame, depth_encoding: str = "16UC1", semantic: bool = True) -> None:
+        stamp, cam = frame.stamp_ns, "camera_color_optical_frame"
+        self.info_pub.publish(camera_info_msg(frame.intrinsics, stamp, cam))
+        self.pubs["/rgb/image"].publish(image_msg(frame.rgb, "rgb8", stamp, cam))
+        depth = (frame.depth * 1000).round().astype("uint16") if depth_encoding == "16UC1" else frame.depth
+        self.pubs["/depth/image"].publish(image_msg(depth, depth_encoding, stamp, cam))
+        if semantic:
+            self.pubs["/semantic/image"].publish(image_msg(frame.labels.astype("uint16"), "16UC1", stamp, cam))

@@ -1,0 +1,58 @@
+"""tracking_node and mapping_node as two OS processes talking over DDS (loopback only)."""
+
+import os
+import random
+import signal
+import subprocess
+import sys
+
+import pytest
+from sensor_msgs.msg import PointCloud2
+
+from sgs_slam_core.datasets import open_dataset
+
+from .helpers import FAST, Feeder, Spinner, new_context, wait_for
+
+pytestmark = pytest.mark.ros
+
+
+def start(module: str, domain: int, *params: str) -> subprocess.Popen:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)  # let the child set up its own library path
+    overrides = "[" + ",".join(f"'{o}'" for o in FAST) + "]"
+    args = ["-p", "preset:=synthetic", "-p", f"overrides:={overrides}", "-p", "lockstep:=true",
+            "-p", "input_qos:=reliable_all", *(a for p in params for a in ("-p", p))]  # fmt: skip
+    return subprocess.Popen([sys.executable, "-m", module, "--ros-args", *args], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+
+
+def test_poses_arrive_across_processes(tiny_scene):
+    frames = [open_dataset(tiny_scene)[i] for i in range(5)]
+    domain = random.randint(1, 100)
+    mapper = start("sgs_slam_ros.mapping_node", domain, "pose_source:=topic", "gaussians_rate_hz:=0.0")
+    tracker = start("sgs_slam_ros.tracking_node", domain, "map_source:=topic")
+    ctx = new_context(domain)
+    feeder = Feeder(ctx)
+    maps = []
+    feeder.create_subscription(PointCloud2, "/mapping_node/gaussians", maps.append, 10)
+    spinner = Spinner(ctx, [feeder])
+    try:
+        assert wait_for(lambda: feeder.connected(subscribers=2), 30.0), "the two nodes did not subscribe"
+        for f in frames:
+            feeder.publish(f)
+            assert wait_for(lambda f=f: f.stamp_ns in feeder.poses, 60.0), f"no pose for frame {f.index}"
+        assert wait_for(lambda: maps, 30.0)  # the mapper published its map for the tracker
+        assert len(feeder.poses) == len(frames)
+    finally:
+        spinner.stop()
+        feeder.destroy_node()
+        ctx.try_shutdown()
+        outputs = []
+        for proc in (tracker, mapper):
+            proc.send_signal(signal.SIGINT)
+            try:
+                outputs.append(proc.communicate(timeout=20)[0])
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                outputs.append(proc.communicate()[0])
+    assert tracker.returncode == 0 and mapper.returncode == 0, "\n".join(outputs)
