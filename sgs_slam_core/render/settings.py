@@ -20,7 +20,7 @@ class RenderSettings:
         backend: ``auto`` picks gsplat on CUDA tensors when it is installed, the compiled ``cpu``
             backend on the CPU when it builds, else ``torch`` (the pure-PyTorch reference).
         tile_size: tile side in pixels for the torch backend (8 is fastest on CPU).
-        cpu_tile_size: tile side of the compiled cpu backend (4, 8 or 16); 0 picks 8 below 100k
+        cpu_tile_size: tile side of the compiled cpu backend (4, 8 or 16); 0 picks 8 below 50k
             pixels and 16 above (measured fastest). Tiling never changes the image, only the speed.
         near_plane: Gaussians with camera-frame z at or below this (m) are culled whole.
         eps2d: isotropic dilation added to every 2D covariance (px^2), as 3DGS/gsplat.
@@ -47,7 +47,7 @@ class RenderSettings:
         """Tile side the compiled cpu backend uses for an image of this size."""
         if self.cpu_tile_size:
             return self.cpu_tile_size
-        return 8 if width * height < 100_000 else 16
+        return 8 if width * height < 50_000 else 16
 
     def __post_init__(self) -> None:
         if self.backend not in ("auto", "torch", "cpu", "gsplat"):
