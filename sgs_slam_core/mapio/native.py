@@ -45,6 +45,7 @@ class MapFile:
     scene_radius: float | None = None  # m, for pruning huge Gaussians when mapping resumes
     locked_labels: list[int] = field(default_factory=list)  # classes locked by edits (see slam.edits)
     keyframe_images: list[CompactFrame] = field(default_factory=list)  # recent keyframes, oldest first
+    frames_processed: int | None = None  # the Slam's frame counter (None: len(trajectory))
 
 
 def _intrinsics_dict(k: Intrinsics | None) -> dict[str, float] | None:
@@ -94,6 +95,7 @@ def save_map(path: str | Path, m: MapFile) -> None:
         "scene_radius": m.scene_radius,
         "locked_labels": [int(i) for i in m.locked_labels],
         "keyframe_images": [_keyframe_dict(kf) for kf in m.keyframe_images],
+        "frames_processed": m.frames_processed,
     }
     atomic_write(path, lambda f: torch.save(payload, f))
 
@@ -123,6 +125,8 @@ def load_map(path: str | Path, device: torch.device | str = "cpu") -> MapFile:
         seen = [int(i) for i in data.get("seen_labels", [])]
         locked = [int(i) for i in data.get("locked_labels", [])]
         images = [_keyframe_from_dict(d, k) for d in data.get("keyframe_images", [])]
+        processed = data.get("frames_processed")
+        processed = None if processed is None else int(processed)
     except (ShapeError, LabelError, TypeError, ValueError, AttributeError, KeyError) as err:
         raise MapFileError(f"{path}: {err}") from err
     for _, pose in [*keyframes, *((i, p) for i, _, p in trajectory)]:
@@ -130,4 +134,4 @@ def load_map(path: str | Path, device: torch.device | str = "cpu") -> MapFile:
             raise MapFileError(f"{path}: poses must be 4x4, found {pose.shape}")
     radius = data.get("scene_radius")
     return MapFile(gaussians, table, dict(data["config"]), k, keyframes, trajectory, seen,
-                   float(radius) if radius is not None else None, locked, images)  # fmt: skip
+                   float(radius) if radius is not None else None, locked, images, processed)  # fmt: skip

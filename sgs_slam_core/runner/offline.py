@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 import yaml
+from torch.profiler import record_function
 
 from sgs_slam_core.cli.progress import ProgressBar
 from sgs_slam_core.config import dump_yaml
@@ -94,6 +95,66 @@ def _ate_so_far(poses: list[np.ndarray], gts: list[np.ndarray | None]) -> str:
     return f"ATE {ate(np.stack([p for p, _ in pairs]), np.stack([g for _, g in pairs])).rmse * 100:.2f} cm"
 
 
+@dataclass
+class _Loop:
+    """What the frame loop produced."""
+
+    frame_indices: list[int] = field(default_factory=list)  # dataset indices of processed frames
+    poses: list[np.ndarray] = field(default_factory=list)
+    steps: list[StepResult] = field(default_factory=list)
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    track_s: float = 0.0
+    map_s: float = 0.0
+    load_s: float = 0.0
+    bad_frames: int = 0
+
+
+def _process_all(slam: Slam, dataset: Dataset, show_progress: bool) -> _Loop:
+    """Feed every frame to ``slam``; frames it rejects are counted and skipped."""
+    loop, gts = _Loop(), []
+    bar = ProgressBar(len(dataset), "slam") if show_progress else None
+    for i in range(len(dataset)):
+        t0 = time.perf_counter()
+        with record_function("data_loading"):
+            frame = dataset[i]
+        loop.load_s += time.perf_counter() - t0
+        try:
+            step = slam.process(frame)
+        except FrameError as err:
+            loop.bad_frames += 1
+            log.warning("frame %d skipped: %s", i, err)
+            continue
+        loop.frame_indices.append(i)
+        loop.poses.append(step.c2w)
+        gts.append(frame.gt_c2w)
+        loop.steps.append(step)
+        loop.rows.append(_csv_row(step, i))
+        loop.track_s += step.track_time_s
+        loop.map_s += step.map_time_s
+        if bar:
+            extra = f"{slam.num_gaussians:,} G"
+            if len(loop.frame_indices) % 10 == 0 or i == len(dataset) - 1:
+                extra = f"{_ate_so_far(loop.poses, gts)}  {extra}"
+            bar.update(i + 1, extra)
+    if not loop.frame_indices:
+        raise DatasetError("no frame could be processed")
+    return loop
+
+
+def _write_outputs(out: Path, slam: Slam, loop: _Loop) -> None:
+    """trajectory.txt, frames.csv, map.sgsmap and map.ply."""
+    stamps = [s.stamp_ns for s in loop.steps]
+    write_tum_trajectory(out / "trajectory.txt", stamps, np.stack(loop.poses))
+    with (out / "frames.csv").open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=_CSV_FIELDS)
+        writer.writeheader()
+        writer.writerows(loop.rows)
+    map_file = slam.to_map_file()
+    map_file.trajectory = list(zip(loop.frame_indices, stamps, loop.poses, strict=True))  # dataset frame indices
+    save_map(out / "map.sgsmap", map_file)
+    write_splat_ply(out / "map.ply", slam.gaussians, slam.codec.table)
+
+
 def run_offline(
     dataset: Dataset,
     config: SlamConfig,
@@ -110,65 +171,25 @@ def run_offline(
     (out / "run.yaml").write_text(yaml.safe_dump(provenance or {}, sort_keys=False))
     torch.manual_seed(config.seed)
     slam = Slam(config, dataset.label_table)
-    bar = ProgressBar(len(dataset), "slam") if show_progress else None
-    frame_indices: list[int] = []
-    poses, gts, steps, rows = [], [], [], []
-    track_s = map_s = load_s = 0.0
-    bad_frames = 0
-    for i in range(len(dataset)):
-        t0 = time.perf_counter()
-        frame = dataset[i]
-        load_s += time.perf_counter() - t0
-        try:
-            step = slam.process(frame)
-        except FrameError as err:
-            bad_frames += 1
-            log.warning("frame %d skipped: %s", i, err)
-            continue
-        frame_indices.append(i)
-        poses.append(step.c2w)
-        gts.append(frame.gt_c2w)
-        steps.append(step)
-        rows.append(_csv_row(step, i))
-        track_s += step.track_time_s
-        map_s += step.map_time_s
-        if bar:
-            done = len(frame_indices)
-            extra = f"{slam.num_gaussians:,} G"
-            if done % 10 == 0 or i == len(dataset) - 1:
-                extra = f"{_ate_so_far(poses, gts)}  {extra}"
-            bar.update(i + 1, extra)
-    if not frame_indices:
-        raise DatasetError("no frame could be processed")
-
-    stamps = [s.stamp_ns for s in steps]
-    write_tum_trajectory(out / "trajectory.txt", stamps, np.stack(poses))
-    with (out / "frames.csv").open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=_CSV_FIELDS)
-        writer.writeheader()
-        writer.writerows(rows)
-    map_file = slam.to_map_file()
-    map_file.trajectory = list(zip(frame_indices, stamps, poses, strict=True))  # dataset frame indices
-    save_map(out / "map.sgsmap", map_file)
-    write_splat_ply(out / "map.ply", slam.gaussians, slam.codec.table)
-
-    frames = len(frame_indices)
+    loop = _process_all(slam, dataset, show_progress)
+    _write_outputs(out, slam, loop)
+    frames = len(loop.frame_indices)
     metrics: dict[str, Any] = evaluate(
-        dataset, frame_indices, poses, slam.gaussians, slam.codec, slam.label_candidates(), config.render,
+        dataset, loop.frame_indices, loop.poses, slam.gaussians, slam.codec, slam.label_candidates(), config.render,
         EvalOptions(config.eval_every, render_examples, out),
     )  # fmt: skip
     metrics.update(
-        fps=frames / max(track_s + map_s, 1e-9),
-        track_ms_per_frame=1e3 * track_s / frames,
-        map_ms_per_frame=1e3 * map_s / frames,
-        load_ms_per_frame=1e3 * load_s / frames,
+        fps=frames / max(loop.track_s + loop.map_s, 1e-9),
+        track_ms_per_frame=1e3 * loop.track_s / frames,
+        map_ms_per_frame=1e3 * loop.map_s / frames,
+        load_ms_per_frame=1e3 * loop.load_s / frames,
         num_gaussians=slam.num_gaussians,
         peak_memory_mb=_peak_memory_mb(slam.device),
         tracking_failures=slam.failures,
-        bad_frames=bad_frames,
+        bad_frames=loop.bad_frames,
         keyframes=len(slam.keyframes),
         device=str(slam.device),
         render_backend=resolve_backend(config.render.backend, slam.device),
     )
     write_metrics(out / "metrics.json", metrics)
-    return RunResult(out, metrics, slam, frame_indices, steps)
+    return RunResult(out, metrics, slam, loop.frame_indices, loop.steps)

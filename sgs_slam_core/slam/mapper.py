@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from torch.profiler import record_function
 
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.render.api import render
@@ -68,11 +69,16 @@ def map_window(
     for it in range(s.iterations):
         wf = window[int(rng.integers(len(window)))]
         semantic = use_semantics and wf.data.semantic is not None
-        out = render(opt.gaussians(), wf.data.intrinsics, wf.w2c, render_settings, with_semantics=semantic)
-        loss = wf.weight * mapping_loss(out, wf.data, s, semantic)
-        loss.backward()
-        opt.step()
-        last = float(loss.detach())
+        with record_function("map.render"):
+            out = render(opt.gaussians(), wf.data.intrinsics, wf.w2c, render_settings, with_semantics=semantic)
+        with record_function("map.loss"):
+            loss = wf.weight * mapping_loss(out, wf.data, s, semantic)
+        with record_function("map.backward"):
+            loss.backward()
+        with record_function("map.step"):
+            opt.step()
         if it in prune_at:
-            pruned += opt.prune(prune_mask(opt.gaussians(), s.prune_opacity, s.prune_scale_ratio * scene_radius))
+            with record_function("map.prune"):
+                pruned += opt.prune(prune_mask(opt.gaussians(), s.prune_opacity, s.prune_scale_ratio * scene_radius))
+    last = float(loss.detach()) if s.iterations else last  # one host sync per window, not per iteration
     return MapResult(opt.result(), s.iterations, pruned, time.perf_counter() - t0, last)

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from torch.profiler import record_function
 
 from sgs_slam_core.config.loader import config_to_dict
 from sgs_slam_core.config.schema import SlamConfig
@@ -130,6 +131,8 @@ class Slam:
         self.frames_processed = 0
         self.failures = 0
         self._resumed_poses: list[np.ndarray] = []  # last two c2w of a loaded map (motion prior)
+        self._loaded_trajectory: list[tuple[int, int, np.ndarray]] = []  # a loaded map's history, saved again
+        self._loaded_keyframe_poses: list[tuple[int, np.ndarray]] = []  # its keyframes without images
         self._gt_origin: np.ndarray | None = None
 
     @property
@@ -208,17 +211,22 @@ class Slam:
     def _map_frame(self, frame: Frame, tracked: TrackOutcome) -> MapOutcome:
         t0 = time.perf_counter()
         index, c2w = tracked.index, tracked.c2w
-        data = tracked.frame_data or FrameTensors.from_frame(frame, self.codec, self.device)
-        data.ignore = self.edits.ignore_mask(data.labels)  # the locks now: an edit may have come since tracking
+        if tracked.frame_data is None:
+            data = self._frame_tensors(frame)
+        else:
+            data = tracked.frame_data
+            data.ignore = self.edits.ignore_mask(data.labels)  # the locks now: an edit may have come since tracking
         data.index = index
         use_sem = frame.labels is not None
         timings: dict[str, float] = {}
-        added = self._densify(data, frame, c2w, index)
+        with record_function("densify"):
+            added = self._densify(data, frame, c2w, index)
         timings["densify"] = time.perf_counter() - t0
         mapping, window = None, None
         if index % self.config.mapping.every == 0 and self.config.mapping.iterations > 0:
             t_sel = time.perf_counter()
-            window = self._select_window(data, c2w, frame.labels, index)
+            with record_function("keyframe_selection"):
+                window = self._select_window(data, c2w, frame.labels, index)
             timings["keyframe_selection"] = time.perf_counter() - t_sel
             mapping = self._map(data, c2w, window, use_sem)
             self._set_gaussians(mapping.gaussians)
@@ -270,11 +278,15 @@ class Slam:
         self._set_gaussians(saved.gaussians.to(self.device))
         with self._lock:
             self.seen_ids = {0, *saved.seen_labels}
-        if saved.trajectory:  # frame indices (keyframe ages) go on from the saved run
+        if saved.trajectory:
             self.initial_c2w = saved.trajectory[-1][2].copy()
-            self.frames_processed = saved.trajectory[-1][0] + 1
             self._resumed_poses = [c2w.copy() for _, _, c2w in saved.trajectory[-2:]]
+        # frame indices (keyframe ages) go on from the saved run
+        self.frames_processed = saved.frames_processed if saved.frames_processed is not None else len(saved.trajectory)
         self.keyframes = list(saved.keyframe_images)
+        with_images = {kf.index for kf in saved.keyframe_images}
+        self._loaded_keyframe_poses = [(i, p) for i, p in saved.keyframes if i not in with_images]
+        self._loaded_trajectory = list(saved.trajectory)
         if saved.scene_radius is not None:
             self.scene_radius = saved.scene_radius
         self.intrinsics = saved.intrinsics
@@ -286,8 +298,9 @@ class Slam:
         """
         images = self.keyframes[-keyframe_images:] if keyframe_images > 0 else []
         return MapFile(self.gaussians, self.codec.table, config_to_dict(self.config), self.intrinsics,
-                       self.keyframe_poses(), list(self.trajectory), self.label_candidates(), self.scene_radius,
-                       sorted(self.locked_labels), list(images))  # fmt: skip
+                       [*self._loaded_keyframe_poses, *self.keyframe_poses()],
+                       [*self._loaded_trajectory, *self.trajectory], self.label_candidates(), self.scene_radius,
+                       sorted(self.locked_labels), list(images), self.frames_processed)  # fmt: skip
 
     def set_map(self, gaussians: GaussianMap) -> None:
         """Replace the map (a tracker following a mapper's published map)."""
@@ -313,8 +326,9 @@ class Slam:
             raise FrameError(f"time stamp went backwards: {frame.stamp_ns} < {self.trajectory[-1][1]} ns")
 
     def _frame_tensors(self, frame: Frame) -> FrameTensors:
-        data = FrameTensors.from_frame(frame, self.codec, self.device)
-        data.ignore = self.edits.ignore_mask(data.labels)
+        with record_function("upload"):
+            data = FrameTensors.from_frame(frame, self.codec, self.device)
+            data.ignore = self.edits.ignore_mask(data.labels)
         return data
 
     def _gt_in_map_frame(self, gt_c2w: np.ndarray) -> np.ndarray:
@@ -369,8 +383,9 @@ class Slam:
         for store_index, weight in zip(window.keyframes, window.weights[:-1], strict=True):
             kf = self.keyframes[store_index]
             w2c = torch.as_tensor(kf.w2c, dtype=torch.float32, device=self.device)
-            kf_data = kf.to_tensors(self.codec, self.device)
-            kf_data.ignore = self.edits.ignore_mask(kf_data.labels)
+            with record_function("upload"):
+                kf_data = kf.to_tensors(self.codec, self.device)
+                kf_data.ignore = self.edits.ignore_mask(kf_data.labels)
             frames.append(WindowFrame(kf_data, w2c, weight))
         w2c_now = torch.as_tensor(np.linalg.inv(c2w), dtype=torch.float32, device=self.device)
         frames.append(WindowFrame(data, w2c_now, window.weights[-1]))

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from torch.profiler import record_function
 
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.render.api import render
@@ -56,9 +57,11 @@ def track(
     best = (float("inf"), init_w2c.copy(), 0.0, float("inf"), 0.0)
     stale, converged, it = 0, False, 0
     for it in range(1, s.iterations + 1):
-        out = render(fixed, frame.intrinsics, pose.w2c(), render_settings, with_semantics=use_semantics)
-        loss = tracking_loss(out, frame, s, use_semantics)
-        value = float(loss.total.detach())
+        with record_function("track.render"):
+            out = render(fixed, frame.intrinsics, pose.w2c(), render_settings, with_semantics=use_semantics)
+        with record_function("track.loss"):
+            loss = tracking_loss(out, frame, s, use_semantics)
+            value = float(loss.total.detach())
         if loss.mask_fraction == 0:
             break
         stale = 0 if value < best[0] * (1 - s.stop_rel_improvement) else stale + 1
@@ -68,8 +71,10 @@ def track(
         if s.early_stop and it >= s.min_iterations and stale >= s.stop_patience:
             converged = True
             break
-        loss.total.backward()
-        adam.step()
-        adam.zero_grad(set_to_none=True)
+        with record_function("track.backward"):
+            loss.total.backward()
+        with record_function("track.step"):
+            adam.step()
+            adam.zero_grad(set_to_none=True)
     value, w2c, per_px, residual, fraction = best
     return TrackResult(w2c, it, converged, value, per_px, residual, fraction, time.perf_counter() - t0)

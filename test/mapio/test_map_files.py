@@ -58,6 +58,7 @@ def map_file(gaussians: GaussianMap) -> MapFile:
         [0, 1, 5],
         4.5,
         [5],
+        frames_processed=7,
     )
 
 
@@ -69,7 +70,7 @@ def test_native_round_trip_is_exact(tmp_path, s, anisotropic):
     assert_same(loaded.gaussians, original.gaussians)
     assert loaded.label_table == original.label_table and loaded.config == original.config
     assert loaded.intrinsics == original.intrinsics and loaded.scene_radius == 4.5
-    assert loaded.seen_labels == [0, 1, 5] and loaded.locked_labels == [5]
+    assert loaded.seen_labels == [0, 1, 5] and loaded.locked_labels == [5] and loaded.frames_processed == 7
     for (i, p), (j, q) in zip(loaded.keyframes, original.keyframes, strict=True):
         assert i == j and np.array_equal(p, q)
     for (i, t, p), (j, u, q) in zip(loaded.trajectory, original.trajectory, strict=True):

@@ -56,6 +56,10 @@ def test_resume_keeps_tracking_and_mapping_in_a_saved_map(tiny, first_half, resu
     gt = np.stack([tiny[i].gt_c2w for i in range(len(tiny))])
     assert ate(np.stack(poses), gt).rmse < 0.015
     assert slam.num_gaussians != len(first_half.gaussians)  # mapping went on
+    again = slam.to_map_file()  # the resumed map keeps the whole history and the frame counter
+    assert [i for i, _, _ in again.trajectory] == list(range(len(tiny)))
+    assert again.frames_processed == len(tiny) == slam.frames_processed
+    assert [i for i, _ in again.keyframes][: len(first_half.keyframes)] == [i for i, _ in first_half.keyframes]
 
 
 def test_a_removed_class_does_not_grow_back(tiny, resumed):
