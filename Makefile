@@ -1,7 +1,7 @@
 # Set-up and entry points. Every target creates .venv if missing and installs what it needs.
 #   make test                       lint + format check + the whole pytest suite
 #   make demo                       the built-in demo on the CPU
-#   make bench                      renderer benchmark (appends to BENCHMARKS.md)
+#   make bench                      renderer, SLAM and bag benchmarks (append to BENCHMARKS.md)
 #   make test TORCH_REQ='torch'     choose another torch requirement (default: local CPU build)
 
 PYTHON ?= python3
@@ -12,7 +12,7 @@ STAMP := $(VENV)/.sgs-slam-installed
 
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: setup test lint demo bench clean
+.PHONY: setup test lint demo bench bench-render bench-slam bench-bags clean
 
 setup: $(STAMP)
 
@@ -33,8 +33,16 @@ test: lint
 demo: setup
 	$(VENV)/bin/sgs-slam demo
 
-bench: setup
+bench: bench-render bench-slam bench-bags
+
+bench-render: setup
 	$(PY) bench/bench_render.py
+
+bench-slam: setup
+	$(PY) bench/bench_slam.py --profile 10
+
+bench-bags: setup
+	$(PY) bench/bench_bags.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import yaml
 
+from sgs_slam_core.cli.run import open_input
 from sgs_slam_core.config import build
 from sgs_slam_core.config.schema import SlamConfig
-from sgs_slam_core.datasets import DatasetOptions, open_dataset
+from sgs_slam_core.datasets import DatasetOptions
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.mapio import load_map
 from sgs_slam_core.runner import EvalOptions, evaluate, format_table, read_metrics
@@ -38,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
         raise DatasetError(f"{args.run_dir} is not a run folder (no run.yaml)")
     info = yaml.safe_load(run_yaml.read_text()) or {}
     source = args.input or Path(info.get("input", ""))
-    dataset = open_dataset(source, info.get("format", "auto"), DatasetOptions(**info.get("options", {})))
+    options = DatasetOptions(**info.get("options", {}))
+    dataset = open_input(source, info.get("format", "auto"), options, info.get("topics") or None)
     saved = load_map(args.run_dir / "map.sgsmap")
     config = build(SlamConfig, saved.config)
     frame_ids = [i for i, _, _ in saved.trajectory]  # dataset frame indices

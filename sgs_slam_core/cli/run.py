@@ -7,12 +7,14 @@ import sys
 from pathlib import Path
 
 from sgs_slam_core.config import list_presets, load_config
-from sgs_slam_core.datasets import FORMATS, DatasetOptions, detect_format, open_dataset
+from sgs_slam_core.datasets import FORMATS, Dataset, DatasetOptions, detect_format, open_dataset
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.runner import format_table, run_offline
 from sgs_slam_core.runner.offline import check_run_dir
 
-__all__ = ["add_parser", "default_preset", "run"]
+__all__ = ["add_parser", "default_preset", "open_input", "parse_topics", "run"]
+
+TOPIC_KEYS = ("color", "camera_info", "depth", "semantic", "pose")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -43,6 +45,31 @@ def add_dataset_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--stride", type=int, default=1, help="use every K-th frame")
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--downscale", type=float, default=1.0, help="divide the image size by F (e.g. 2)")
+    p.add_argument("--topic", dest="topics", action="append", default=[], metavar="KEY=NAME",
+                   help=f"bag topic of a stream, KEY one of {', '.join(TOPIC_KEYS)} "
+                   "(bags recorded elsewhere; repeatable)")  # fmt: skip
+
+
+def parse_topics(items: list[str]) -> dict[str, str]:
+    """``["depth=/d", ...]`` -> ``{"depth": "/d"}``; an unknown key or a missing '=' raises DatasetError."""
+    topics = {}
+    for item in items:
+        key, sep, name = item.partition("=")
+        if not sep or key not in TOPIC_KEYS or not name.startswith("/"):
+            raise DatasetError(f"--topic {item!r}: expected KEY=/topic with KEY one of {', '.join(TOPIC_KEYS)}")
+        topics[key] = name
+    return topics
+
+
+def open_input(path: Path, fmt: str, options: DatasetOptions, topics: dict[str, str] | None = None) -> Dataset:
+    """Open a dataset folder or bag; ``topics`` (bags only) rename the streams."""
+    if not topics:
+        return open_dataset(path, fmt, options)
+    if (detect_format(path) if fmt == "auto" else fmt) != "mcap":
+        raise DatasetError("--topic applies to MCAP bags only")
+    from bags import BagTopics, open_bag  # noqa: PLC0415 - bags depends on the core, not the reverse
+
+    return open_bag(path, options, BagTopics(**topics))
 
 
 def default_preset(path: Path, fmt: str) -> str:
@@ -62,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
     overrides = [*args.overrides, *([f"device={args.device}"] if args.device else [])]
     config = load_config(preset, args.config, overrides)  # config errors surface before any data is read
     options = DatasetOptions(start=args.start, stride=args.stride, max_frames=args.max_frames, downscale=args.downscale)
-    dataset = open_dataset(args.input, args.format, options)
+    topics = parse_topics(args.topics)
+    dataset = open_input(args.input, args.format, options, topics)
     print(f"{dataset.name}: {len(dataset)} frames at {dataset.intrinsics.width}x{dataset.intrinsics.height}, "
           f"preset {preset}, device {config.device}", file=sys.stderr)  # fmt: skip
     provenance = {
@@ -74,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
             "max_frames": args.max_frames,
             "downscale": args.downscale,
         },
+        "topics": topics,
         "preset": preset,
         "config_file": str(args.config) if args.config else None,
         "overrides": overrides,

@@ -2,6 +2,7 @@
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,17 +117,16 @@ def test_real_tum_sample_converted_and_read_back(tum_teddy, tmp_path):
     assert not any(gt[:5]) and all(gt[5:])  # frames before the motion capture started carry no pose
 
 
-def test_bags_recorded_elsewhere_bgr_and_32fc1(tmp_path):
+def write_foreign_bag(bag: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """A 3-frame bag as another recorder writes it: bgr8 colour, 32FC1 depth 5 ms late, other topic names."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     from bags import rosbags_messages as rm
-    from bags.layout import BagTopics
     from msg_adapters import camera_info_fields, image_fields
     from sgs_slam_core.geometry import Intrinsics
 
     ts = get_typestore(Stores.ROS2_JAZZY)
     k = Intrinsics(40.0, 40.0, 15.5, 11.5, 32, 24)
-    bag = tmp_path / "other"
     rng = np.random.default_rng(0)
     frames = [
         (rng.integers(0, 255, (24, 32, 3), dtype=np.uint8), rng.uniform(0.5, 3, (24, 32)).astype(np.float32))
@@ -150,9 +150,35 @@ def test_bags_recorded_elsewhere_bgr_and_32fc1(tmp_path):
             )
             depth_msg = rm.image(ts, image_fields(depth, "32FC1", t + 5_000_000, "c"))
             w.write(c["/cam/depth"], t + 5_000_000, ts.serialize_cdr(depth_msg, "sensor_msgs/msg/Image"))
-    back = BagDataset(bag, topics=BagTopics(color="/cam/rgb", depth="/cam/depth", camera_info="/cam/info"))
+    return frames
+
+
+def test_bags_recorded_elsewhere_bgr_and_32fc1(tmp_path):
+    from bags.layout import BagTopics
+
+    frames = write_foreign_bag(tmp_path / "other")
+    back = BagDataset(
+        tmp_path / "other", topics=BagTopics(color="/cam/rgb", depth="/cam/depth", camera_info="/cam/info")
+    )
     assert len(back) == 3 and not back.has_labels and not back.has_ground_truth
     assert np.array_equal(back[1].rgb, frames[1][0][..., ::-1]) and np.allclose(back[1].depth, frames[1][1])
+
+
+def test_run_names_the_topics_of_a_foreign_bag(tiny_scene, tmp_path, capsys):
+    write_foreign_bag(tmp_path / "other")
+    sets = [a for o in FAST_SLAM for a in ("--set", o)]
+    common = ["--preset", "tum", "--quiet", *sets]
+    assert slam_main(["run", str(tmp_path / "other"), "--out", str(tmp_path / "default"), *common]) == 1
+    assert "no messages on" in capsys.readouterr().err
+    topics = ["--topic", "color=/cam/rgb", "--topic", "depth=/cam/depth", "--topic", "camera_info=/cam/info"]
+    assert slam_main(["run", str(tmp_path / "other"), "--out", str(tmp_path / "run"), *topics, *common]) == 0
+    stamps, _ = read_tum_trajectory(tmp_path / "run" / "trajectory.txt")
+    assert len(stamps) == 3
+    assert slam_main(["eval", str(tmp_path / "run"), "--no-write"]) == 0  # eval reopens the bag with the topics
+    assert slam_main(["run", str(tmp_path / "other"), "--out", str(tmp_path / "x"), "--topic", "rgb=/cam/rgb"]) == 1
+    assert "expected KEY=/topic" in capsys.readouterr().err
+    assert slam_main(["run", str(tiny_scene), "--out", str(tmp_path / "y"), "--topic", "color=/cam/rgb"]) == 1
+    assert "MCAP bags only" in capsys.readouterr().err
 
 
 def test_corrupt_and_truncated_bags_give_clear_errors(tiny_scene, tmp_path):

@@ -1,0 +1,175 @@
+"""SLAM benchmark: per-frame tracking/mapping time, FPS, Gaussians, memory and accuracy of a whole run.
+
+Runs ``run_offline`` (the same code as ``sgs-slam run``) on a dataset folder or MCAP bag (default:
+the built-in synthetic room), prints a table, writes ``timing.png`` (time per frame and Gaussian
+count) into the run folder and appends the table to BENCHMARKS.md. ``--profile K`` adds a second
+pass that profiles K frames (after ``--profile-warmup`` unprofiled ones) with torch.profiler and
+breaks the time down by the pipeline's ``record_function`` labels (track.render, map.backward, ...).
+
+    python bench/bench_slam.py [INPUT] [--preset P] [--device cpu|cuda] [--max-frames N]
+                               [--downscale F] [--set KEY=VALUE] [--profile K] [--no-append]
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.profiler import ProfilerActivity, profile
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.common import append_section, markdown_table
+from bench.plot import Series, line_panel, save_panels
+from sgs_slam_core.cli.demo import default_room_dir, ensure_room
+from sgs_slam_core.cli.run import default_preset
+from sgs_slam_core.config import SlamConfig, load_config
+from sgs_slam_core.datasets import DatasetOptions, open_dataset
+from sgs_slam_core.datasets.base import Dataset
+from sgs_slam_core.runner import RunResult, run_offline
+from sgs_slam_core.slam.system import Slam
+
+LABELS = ("data_loading", "upload", "track.render", "track.loss", "track.backward", "track.step", "densify",
+          "keyframe_selection", "map.render", "map.loss", "map.backward", "map.step", "map.prune")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class ProfileRow:
+    """Time spent under one record_function label, per profiled frame."""
+
+    label: str
+    host_ms: float  # wall time on the host inside the label (children included)
+    device_ms: float  # CUDA kernel time launched inside it (0 on the CPU)
+    calls: int
+
+
+def _percentile(values: list[float], q: float) -> float:
+    return float(np.percentile(np.asarray(values), q)) if values else float("nan")
+
+
+def summary_rows(result: RunResult, dataset: Dataset, preset: str) -> list[list[object]]:
+    """One row per run: the columns of the results table."""
+    steps, m = result.steps, result.metrics
+    track = [s.track_time_s * 1e3 for s in steps]
+    total = [(s.track_time_s + s.map_time_s) * 1e3 for s in steps]
+    iters = [s.tracking.iterations for s in steps if s.tracking is not None]
+    k = dataset.intrinsics
+
+    def cm(key: str) -> str:
+        return f"{m[key] * 100:.2f}" if m.get(key) is not None else "-"
+
+    gpu = f"{torch.cuda.max_memory_allocated() / 2**20:.0f}" if result.slam.device.type == "cuda" else "-"
+    return [[
+        f"{dataset.name} {len(steps)} fr", f"{k.width}x{k.height}", preset, str(result.slam.device),
+        f"{np.median(track):.0f} / {_percentile(track, 95):.0f}",
+        f"{m['map_ms_per_frame']:.0f}", f"{np.median(total):.0f}", f"{m['fps']:.2f}",
+        f"{np.mean(iters):.1f}" if iters else "-", f"{m['num_gaussians']:,}",
+        f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f}", gpu,
+        cm("ate_rmse_m"), f"{m['psnr_db']:.2f}" if m.get("psnr_db") is not None else "-", cm("depth_l1_m"),
+        f"{m['miou'] * 100:.1f}" if m.get("miou") is not None else "-",
+    ]]  # fmt: skip
+
+
+SUMMARY_HEADERS = ["input", "size", "preset", "device", "track ms (median / p95)", "map ms (mean)",
+                   "total ms (median)", "FPS", "track iters", "Gaussians", "peak host MB", "peak GPU MB",
+                   "ATE cm", "PSNR dB", "depth L1 cm", "mIoU %"]  # fmt: skip
+
+
+def timing_plot(path: Path, result: RunResult, title: str) -> None:
+    """Time per frame (tracking, mapping, total) over one panel, Gaussian count under it."""
+    steps = result.steps
+    track = np.array([s.track_time_s * 1e3 for s in steps])
+    mapping = np.array([s.map_time_s * 1e3 for s in steps])
+    times = [Series("tracking", track, (200, 90, 30)), Series("mapping", mapping, (40, 140, 40)),
+             Series("total", track + mapping, (0, 0, 0))]  # fmt: skip
+    count = [Series("Gaussians (k)", np.array([s.num_gaussians / 1e3 for s in steps]), (30, 30, 200))]
+    save_panels(path, [line_panel(times, f"time per frame, {title}", "ms"), line_panel(count, "map size", "k")])
+
+
+def profile_frames(dataset: Dataset, config: SlamConfig, warmup: int, count: int) -> tuple[list[ProfileRow], float]:
+    """Profile frames warmup..warmup+count-1 of a fresh run; rows per label and the wall ms per frame."""
+    torch.manual_seed(config.seed)
+    slam = Slam(config, dataset.label_table)
+    for i in range(min(warmup, len(dataset) - 1)):
+        slam.process(dataset[i])
+    frames = range(min(warmup, len(dataset) - 1), min(warmup + count, len(dataset)))
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if slam.device.type == "cuda" else [])
+    with profile(activities=activities) as prof:
+        t0 = time.perf_counter()
+        for i in frames:
+            slam.process(dataset[i])
+        if slam.device.type == "cuda":
+            torch.cuda.synchronize()
+        wall_s = time.perf_counter() - t0
+    events = {e.key: e for e in prof.key_averages()}
+    n = max(len(frames), 1)
+    rows = []
+    for label in LABELS:
+        if label in events:
+            e = events[label]
+            device_us = getattr(e, "device_time_total", 0.0)
+            rows.append(ProfileRow(label, e.cpu_time_total / 1e3 / n, device_us / 1e3 / n, e.count // n))
+    return rows, wall_s * 1e3 / n
+
+
+def profile_table(rows: list[ProfileRow], wall_ms: float, device: str) -> str:
+    """Markdown table: label, host ms/frame, share of the profiled wall time, device ms, calls."""
+    labelled = sum(r.host_ms for r in rows)  # the labels do not nest
+    body = [[r.label, f"{r.host_ms:.2f}", f"{100 * r.host_ms / wall_ms:.1f}",
+             f"{r.device_ms:.2f}" if device == "cuda" else "-", r.calls] for r in rows]  # fmt: skip
+    body.append(["(unlabelled: Python, guard, bookkeeping)", f"{wall_ms - labelled:.2f}",
+                 f"{100 * (wall_ms - labelled) / wall_ms:.1f}", "-", "-"])  # fmt: skip
+    return markdown_table(["label", "host ms/frame", "% of frame", "device ms/frame", "calls/frame"], body)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("input", nargs="?", type=Path, help="dataset folder or MCAP bag (default: the synthetic room)")
+    parser.add_argument("--format", default="auto", help="dataset format (default: detect)")
+    parser.add_argument("--preset", help="config preset (default: chosen from the dataset)")
+    parser.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
+    parser.add_argument("--max-frames", type=int, help="process at most N frames")
+    parser.add_argument("--downscale", type=float, help="divide the image size by F (room default: 2 = 160x120)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--out", type=Path, help="run folder (default: a temporary folder)")
+    parser.add_argument("--profile", type=int, default=0, metavar="K", help="profile K frames in a second pass")
+    parser.add_argument("--profile-warmup", type=int, default=20, help="unprofiled frames before the profiled ones")
+    parser.add_argument("--no-append", action="store_true", help="print only, do not append to BENCHMARKS.md")
+    args = parser.parse_args()
+
+    data = args.input or ensure_room(default_room_dir())
+    downscale = args.downscale or (2.0 if args.input is None else 1.0)
+    preset = args.preset or default_preset(data, args.format)
+    config = load_config(preset, None, [*args.overrides, f"device={args.device}"])
+    dataset = open_dataset(data, args.format, DatasetOptions(max_frames=args.max_frames, downscale=downscale))
+    out = args.out or Path(tempfile.mkdtemp(prefix="bench_slam_"))
+    k = dataset.intrinsics
+    print(f"{dataset.name}: {len(dataset)} frames at {k.width}x{k.height}, preset {preset}", file=sys.stderr)
+    result = run_offline(dataset, config, out, overwrite=True, provenance={"input": str(data), "bench": True})
+    title = f"{dataset.name} {k.width}x{k.height}, {preset}, {result.slam.device}"
+    timing_plot(out / "timing.png", result, title)
+    body = markdown_table(SUMMARY_HEADERS, summary_rows(result, dataset, preset))
+    body += f"\n\nOverrides: {args.overrides or 'none'}. Run folder (frames.csv, metrics.json, timing.png): `{out}`.\n"
+    if args.profile > 0:
+        rows, wall_ms = profile_frames(dataset, config, args.profile_warmup, args.profile)
+        body += (
+            f"\nProfile of frames {args.profile_warmup}..{args.profile_warmup + args.profile - 1} "
+            f"(torch.profiler, {wall_ms:.1f} ms/frame under the profiler):\n\n"
+            + profile_table(rows, wall_ms, result.slam.device.type)
+            + "\n"
+        )
+    print(body)
+    print(f"plot: {out / 'timing.png'}")
+    if not args.no_append:
+        append_section(f"SLAM: {title}", body)
+
+
+if __name__ == "__main__":
+    main()
