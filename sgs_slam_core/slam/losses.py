@@ -17,11 +17,11 @@ __all__ = ["TrackingLoss", "mapping_loss", "tracking_loss", "tracking_mask"]
 
 @dataclass
 class TrackingLoss:
-    """The scalar to minimise and what the failure guard looks at."""
+    """The scalar to minimise and what the failure guard looks at; all on the frame's device (no host sync)."""
 
-    total: Tensor  # scalar
-    mask_fraction: float  # fraction of pixels in the loss
-    depth_residual_m: float  # mean |D - D_gt| over the mask
+    total: Tensor  # [] differentiable
+    pixels: Tensor  # [] int64, pixels in the mask
+    depth_residual_m: Tensor  # [] mean |D - D_gt| over the mask (m), inf when the mask is empty
 
 
 def tracking_mask(out: RenderOutput, frame: FrameTensors, sil_threshold: float) -> Tensor:  # [H, W] bool
@@ -30,16 +30,21 @@ def tracking_mask(out: RenderOutput, frame: FrameTensors, sil_threshold: float) 
 
 
 def tracking_loss(out: RenderOutput, frame: FrameTensors, s: TrackingSettings, use_semantics: bool) -> TrackingLoss:
-    """L1 **sums** over the mask: w_d |D - D_gt| + w_c |C - C_gt| + w_s |S - S_gt| (as the reference)."""
+    """L1 **sums** over the mask: w_d |D - D_gt| + w_c |C - C_gt| + w_s |S - S_gt| (as the reference).
+
+    Masked by ``where`` before the absolute value (not by indexing), so nothing waits for the device
+    and pixels outside the mask (a NaN render included) get exactly zero gradient.
+    """
     mask = tracking_mask(out, frame, s.sil_threshold)
-    count = int(mask.sum())
-    depth_err = (out.depth - frame.depth).abs()[mask]
+    pixels = mask.sum()
+    depth_err = torch.where(mask, out.depth - frame.depth, 0.0).abs()
     total = s.weight_depth * depth_err.sum()
-    total = total + s.weight_color * (out.color - frame.rgb).abs()[mask].sum()
+    total = total + s.weight_color * torch.where(mask[..., None], out.color - frame.rgb, 0.0).abs().sum()
     if use_semantics and frame.semantic is not None and s.weight_semantic > 0:
-        total = total + s.weight_semantic * (out.semantic - frame.semantic).abs()[mask].sum()
-    residual = float(depth_err.detach().mean()) if count else float("inf")
-    return TrackingLoss(total, count / mask.numel(), residual)
+        sem_err = torch.where(mask[..., None], out.semantic - frame.semantic, 0.0).abs()
+        total = total + s.weight_semantic * sem_err.sum()
+    residual = torch.where(pixels > 0, depth_err.detach().sum() / pixels.clamp(min=1), float("inf"))
+    return TrackingLoss(total, pixels, residual)
 
 
 def _photometric(pred: Tensor, target: Tensor, ignore: Tensor | None, ssim_weight: float) -> Tensor:
@@ -57,7 +62,8 @@ def mapping_loss(out: RenderOutput, frame: FrameTensors, s: MappingSettings, use
     Colour and semantics count every pixel except ignored ones (edit locks).
     """
     valid = frame.valid & torch.isfinite(out.depth)
-    loss = s.weight_depth * (out.depth - frame.depth).abs()[valid].mean() if bool(valid.any()) else out.depth.sum() * 0
+    depth_err = torch.where(valid, out.depth - frame.depth, 0.0).abs().sum() / valid.sum().clamp(min=1)
+    loss = s.weight_depth * depth_err
     loss = loss + s.weight_color * _photometric(out.color, frame.rgb, frame.ignore, s.ssim_weight)
     if use_semantics and frame.semantic is not None and s.weight_semantic > 0:
         loss = loss + s.weight_semantic * _photometric(out.semantic, frame.semantic, frame.ignore, s.ssim_weight)

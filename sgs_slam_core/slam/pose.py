@@ -30,10 +30,14 @@ class PoseParameters:
         """The pose as a matrix."""
         return se3_exp(torch.cat([self.rho, self.phi])) @ self.start
 
-    def numpy(self) -> np.ndarray:  # [4, 4] float64
-        """The current value, composed in float64."""
+    def xi(self) -> Tensor:  # [6] (rho, phi), detached
+        """The current increment."""
+        return torch.cat([self.rho, self.phi]).detach()
+
+    def numpy(self, xi: Tensor | None = None) -> np.ndarray:  # [4, 4] float64
+        """The pose at ``xi`` (default: the current value), composed in float64."""
         with torch.no_grad():
-            xi = torch.cat([self.rho, self.phi]).double().cpu()
+            xi = (self.xi() if xi is None else xi).double().cpu()
             return (se3_exp(xi) @ self.start.double().cpu()).numpy()
 
 

@@ -39,6 +39,8 @@ class TrackingSettings:
             fraction.
         stop_patience: iterations without improvement that end tracking.
         min_iterations: never stop before this many steps.
+        stop_check_every: read the stop test back from the device every n steps (0 = auto: every
+            step on the CPU, where reading is free, every 5 on CUDA, so the loop does not wait on the GPU).
         constant_velocity: initialise from the last two poses (else from the last pose).
         use_gt_pose: replace tracking by the ground-truth pose (ablation; needs ground truth).
     """
@@ -54,6 +56,7 @@ class TrackingSettings:
     stop_rel_improvement: float = 1e-3
     stop_patience: int = 5
     min_iterations: int = 5
+    stop_check_every: int = 0
     constant_velocity: bool = True
     use_gt_pose: bool = False
 
@@ -61,7 +64,8 @@ class TrackingSettings:
         _positive("tracking", iterations=self.iterations, lr_rotation=self.lr_rotation,
                   lr_translation=self.lr_translation, stop_patience=self.stop_patience)  # fmt: skip
         _non_negative("tracking", weight_depth=self.weight_depth, weight_color=self.weight_color,
-                      weight_semantic=self.weight_semantic, min_iterations=self.min_iterations)  # fmt: skip
+                      weight_semantic=self.weight_semantic, min_iterations=self.min_iterations,
+                      stop_check_every=self.stop_check_every)  # fmt: skip
         if not 0 <= self.sil_threshold < 1:
             raise ConfigError(f"tracking.sil_threshold must be in [0, 1), got {self.sil_threshold}")
         if not 0 <= self.stop_rel_improvement < 1:

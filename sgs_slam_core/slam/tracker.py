@@ -7,13 +7,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from torch import Tensor
 from torch.profiler import record_function
 
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.render.api import render
 from sgs_slam_core.render.settings import RenderSettings
 from sgs_slam_core.slam.frame_data import FrameTensors
-from sgs_slam_core.slam.losses import tracking_loss
+from sgs_slam_core.slam.losses import TrackingLoss, tracking_loss
 from sgs_slam_core.slam.pose import PoseParameters
 from sgs_slam_core.slam.settings import TrackingSettings
 
@@ -46,35 +47,68 @@ def track(
 
     Unlike the reference, the stored best pose is the one that produced the best loss (no
     off-by-one), and tracking stops early once ``stop_patience`` iterations in a row fail to lower
-    the best loss by more than ``stop_rel_improvement``.
+    the best loss by more than ``stop_rel_improvement``. The best pose and the stop counter live on
+    the device; the host reads them every ``stop_check_every`` steps only.
     """
     t0 = time.perf_counter()
     fixed = gaussians.detach()
-    pose = PoseParameters(init_w2c, fixed.device)
+    device = fixed.device
+    pose = PoseParameters(init_w2c, device)
     adam = torch.optim.Adam(
         [{"params": [pose.phi], "lr": s.lr_rotation}, {"params": [pose.rho], "lr": s.lr_translation}]
     )
-    best = (float("inf"), init_w2c.copy(), 0.0, float("inf"), 0.0)
-    stale, converged, it = 0, False, 0
+    check_every = s.stop_check_every or (5 if device.type == "cuda" else 1)
+    best = _Best.start(device)
+    converged, it = False, 0
     for it in range(1, s.iterations + 1):
         with record_function("track.render"):
             out = render(fixed, frame.intrinsics, pose.w2c(), render_settings, with_semantics=use_semantics)
         with record_function("track.loss"):
             loss = tracking_loss(out, frame, s, use_semantics)
-            value = float(loss.total.detach())
-        if loss.mask_fraction == 0:
-            break
-        stale = 0 if value < best[0] * (1 - s.stop_rel_improvement) else stale + 1
-        if value < best[0]:
-            best = (value, pose.numpy(), value / (loss.mask_fraction * frame.depth.numel()), loss.depth_residual_m,
-                    loss.mask_fraction)  # fmt: skip
-        if s.early_stop and it >= s.min_iterations and stale >= s.stop_patience:
-            converged = True
-            break
+            best.update(loss, pose.xi(), s.stop_rel_improvement)
+        if it % check_every == 0 or it == s.iterations:
+            pixels, stale = (int(v) for v in torch.stack([loss.pixels, best.stale]).tolist())  # the one host read
+            if pixels == 0:
+                break
+            if s.early_stop and it >= s.min_iterations and stale >= s.stop_patience:
+                converged = True
+                break
         with record_function("track.backward"):
             loss.total.backward()
         with record_function("track.step"):
             adam.step()
             adam.zero_grad(set_to_none=True)
-    value, w2c, per_px, residual, fraction = best
-    return TrackResult(w2c, it, converged, value, per_px, residual, fraction, time.perf_counter() - t0)
+    value, pixels, residual = (float(v) for v in torch.stack([best.loss, best.pixels.float(), best.residual]).tolist())
+    if pixels == 0:  # no pixel was ever explained: keep the initial pose
+        return TrackResult(init_w2c.copy(), it, converged, float("inf"), 0.0, float("inf"), 0.0,
+                           time.perf_counter() - t0)  # fmt: skip
+    return TrackResult(pose.numpy(best.xi), it, converged, value, value / pixels, residual,
+                       pixels / frame.depth.numel(), time.perf_counter() - t0)  # fmt: skip
+
+
+@dataclass
+class _Best:
+    """The lowest loss so far and its pose, on the device; ``stale`` counts steps without real improvement."""
+
+    loss: Tensor  # []
+    xi: Tensor  # [6]
+    pixels: Tensor  # [] int64
+    residual: Tensor  # []
+    stale: Tensor  # [] int64
+
+    @staticmethod
+    def start(device: torch.device) -> _Best:
+        inf = torch.tensor(float("inf"), device=device)
+        zero = torch.zeros((), dtype=torch.long, device=device)
+        return _Best(inf, torch.zeros(6, device=device), zero, inf.clone(), zero.clone())
+
+    def update(self, loss: TrackingLoss, xi: Tensor, rel_improvement: float) -> None:
+        value = loss.total.detach()
+        valid = loss.pixels > 0  # an empty mask sums to 0 but explains nothing
+        improved = valid & (value < self.loss * (1 - rel_improvement))
+        self.stale = torch.where(improved, 0, self.stale + 1)
+        better = valid & (value < self.loss)
+        self.loss = torch.where(better, value, self.loss)
+        self.xi = torch.where(better, xi, self.xi)
+        self.pixels = torch.where(better, loss.pixels, self.pixels)
+        self.residual = torch.where(better, loss.depth_residual_m, self.residual)

@@ -1,0 +1,74 @@
+"""Tracking on the device: masked losses without indexing, best pose and early stop without host reads."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import torch
+
+from sgs_slam_core.geometry import se3_exp
+from sgs_slam_core.render import RenderSettings, render
+from sgs_slam_core.render.api import RenderOutput
+from sgs_slam_core.slam.frame_data import FrameTensors
+from sgs_slam_core.slam.losses import mapping_loss, tracking_loss
+from sgs_slam_core.slam.settings import MappingSettings, TrackingSettings
+from sgs_slam_core.slam.tracker import track
+
+from ..render.scenes import random_scene
+
+SETTINGS = RenderSettings(backend="torch")
+
+
+def target_frame(n: int = 1500, width: int = 48, height: int = 36) -> tuple[object, FrameTensors]:
+    """The scene rendered at the identity pose is the observation, so tracking must come back to it."""
+    gm, k = random_scene(n, width, height, seed=3)
+    with torch.no_grad():
+        out = render(gm, k, torch.eye(4), SETTINGS)
+    depth = torch.where(out.silhouette > 0.5, out.depth, 0.0)
+    frame = FrameTensors(0, k, out.color, depth, None, out.semantic.clone())
+    return gm, frame
+
+
+def test_tracking_loss_matches_indexed_sums_and_gives_no_gradient_outside_the_mask():
+    gm, frame = target_frame()
+    out = render(gm, frame.intrinsics, se3_exp(torch.tensor([0.01, 0, 0, 0, 0.01, 0])), SETTINGS)
+    depth = out.depth.detach().clone()
+    depth[3, 4] = float("nan")  # a broken render pixel must not poison the loss or the gradient
+    depth.requires_grad_(True)
+    out = dataclasses.replace(out, depth=depth)
+    s = TrackingSettings(sil_threshold=0.5)
+    loss = tracking_loss(out, frame, s, use_semantics=True)
+    mask = frame.valid & (out.silhouette.detach() > 0.5) & torch.isfinite(depth.detach())
+    expected = ((depth - frame.depth).abs()[mask].sum() + 0.5 * (out.color - frame.rgb).abs()[mask].sum()
+                + 0.05 * (out.semantic - frame.semantic).abs()[mask].sum())  # fmt: skip
+    assert int(loss.pixels) == int(mask.sum()) > 100
+    torch.testing.assert_close(loss.total, expected)
+    torch.testing.assert_close(loss.depth_residual_m, (depth - frame.depth).abs()[mask].mean().detach())
+    loss.total.backward()
+    assert torch.isfinite(depth.grad).all() and float(depth.grad[~mask].abs().max()) == 0.0
+
+
+def test_an_empty_mask_gives_zero_pixels_and_infinite_residual():
+    _, frame = target_frame()
+    h, w = frame.depth.shape
+    out = RenderOutput(torch.zeros(h, w, 3), torch.zeros(h, w), torch.zeros(h, w), torch.zeros(h, w, 3))
+    loss = tracking_loss(out, frame, TrackingSettings(), use_semantics=True)
+    assert int(loss.pixels) == 0 and float(loss.total) == 0.0 and loss.depth_residual_m.item() == float("inf")
+    assert float(mapping_loss(out, dataclasses.replace(frame, depth=torch.zeros(h, w)), MappingSettings(), False)) >= 0
+
+
+def test_reading_the_stop_test_less_often_changes_nothing_but_the_stop_step():
+    gm, frame = target_frame()
+    start = se3_exp(torch.tensor([0.02, -0.01, 0.01, 0.01, -0.015, 0.005], dtype=torch.float64)).numpy()
+    base = TrackingSettings(iterations=60, lr_rotation=4e-3, lr_translation=4e-3, sil_threshold=0.5)
+    fixed = [track(gm, frame, start, dataclasses.replace(base, early_stop=False, stop_check_every=c), SETTINGS, True)
+             for c in (1, 7)]  # fmt: skip
+    assert fixed[0].iterations == fixed[1].iterations == 60
+    assert np.array_equal(fixed[0].w2c, fixed[1].w2c) and fixed[0].loss == fixed[1].loss
+    assert np.abs(fixed[0].w2c - np.eye(4)).max() < 0.2 * np.abs(start - np.eye(4)).max()  # it converged
+    every, sparse = (track(gm, frame, start, dataclasses.replace(base, stop_check_every=c), SETTINGS, True)
+                     for c in (1, 7))  # fmt: skip
+    assert every.converged and sparse.converged
+    assert sparse.iterations % 7 == 0 and every.iterations <= sparse.iterations  # stops only where it reads
+    assert sparse.loss <= every.loss  # more steps never lose the best pose
