@@ -8,11 +8,12 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from bags.errors import BagError
 from bags.info import bag_info
 from bags.writer import convert
+from sgs_slam_core.cli import run_command
 from sgs_slam_core.cli.progress import ProgressBar
 from sgs_slam_core.datasets import FORMATS, DatasetOptions, open_dataset
-from sgs_slam_core.errors import SgsSlamError
 
 __all__ = ["main"]
 
@@ -20,7 +21,7 @@ __all__ = ["main"]
 def _convert(args: argparse.Namespace) -> int:
     out = args.out or args.input.with_name(args.input.name.rstrip("/") + "_bag")
     if out.exists():
-        raise SgsSlamError(f"{out} exists; refusing to overwrite")
+        raise BagError(f"{out} exists; refusing to overwrite")
     dataset = open_dataset(args.input, args.format, DatasetOptions(max_frames=args.max_frames))
     bar = ProgressBar(len(dataset), "convert")
     t0 = time.perf_counter()
@@ -56,14 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; errors are one line on stderr and exit code 1."""
-    args = build_parser().parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except SgsSlamError as err:
-        print(f"sgs-slam-bag: error: {err}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        return 130
+    return run_command("sgs-slam-bag", build_parser(), argv)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from sgs_slam_core.cli import demo, edit, evaluate, export, map_labels, render_views, run, synth
 from sgs_slam_core.errors import SgsSlamError
 
-__all__ = ["main"]
+__all__ = ["main", "run_command"]
 
 _COMMANDS = (run, evaluate, synth, demo, edit, render_views, map_labels, export)
 
@@ -23,17 +23,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``sgs-slam`` console script."""
-    args = build_parser().parse_args(argv)
+def run_command(prog: str, parser: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
+    """Parse, run ``args.func``; a library error becomes one line on stderr and exit code 1."""
+    args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except SgsSlamError as err:
-        print(f"sgs-slam: error: {err}", file=sys.stderr)
+        print(f"{prog}: error: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print("sgs-slam: interrupted", file=sys.stderr)
+        print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``sgs-slam`` console script."""
+    return run_command("sgs-slam", build_parser(), argv)
 
 
 if __name__ == "__main__":
