@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import json
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from bags.errors import BagError
-from bags.reader import _READ_ERRORS, bag_file, read_custom_data
+from bags.reader import bag_file, read_custom_data
 
 __all__ = ["BagInfo", "TopicInfo", "bag_info"]
+
+_READ_ERRORS = (McapError, EOFError, OSError, struct.error, ValueError, RuntimeError)  # what the mcap reader raises
 
 
 @dataclass

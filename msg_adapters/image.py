@@ -87,7 +87,7 @@ def depth_from_image(msg: Any, depth_scale: float = 1000.0) -> np.ndarray:  # [H
     if enc == "32FC1":
         out = np.where(np.isfinite(arr) & (arr > 0), arr, 0.0).astype(np.float32)
     else:
-        out = (arr.astype(np.float32) / np.float32(depth_scale)).astype(np.float32)
+        out = np.divide(arr, np.float32(depth_scale), dtype=np.float32)  # one pass, same values as float32 / float32
     return out
 
 

@@ -22,9 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
-import yaml
 from geometry_msgs.msg import PoseStamped
-from mcap.reader import make_reader
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -33,7 +31,8 @@ from rosgraph_msgs.msg import Clock
 
 from bags.errors import BagError
 from bags.layout import BagTopics
-from bags.reader import _READ_ERRORS, _header_stamp, bag_file
+from bags.mcap_index import MessageRef
+from bags.reader import bag_file, open_index, read_metadata
 from msg_adapters import stamp_to_ns
 
 __all__ = ["BagPlayer", "PlayStats", "main"]
@@ -56,12 +55,8 @@ def _message_class(type_name: str) -> type:
 
 def _recorded_qos(bag: Path) -> dict[str, QoSProfile]:
     """Offered QoS per topic from a rosbag2 metadata.yaml (reliable / volatile when unknown)."""
-    meta = (bag if bag.is_dir() else bag.parent) / "metadata.yaml"
     out: dict[str, QoSProfile] = {}
-    if not meta.is_file():
-        return out
-    info = (yaml.safe_load(meta.read_text()) or {}).get("rosbag2_bagfile_information", {})
-    for entry in info.get("topics_with_message_count", []):
+    for entry in read_metadata(bag).get("topics_with_message_count", []):
         meta_topic = entry.get("topic_metadata", {})
         profiles = meta_topic.get("offered_qos_profiles") or []
         profile = profiles[0] if isinstance(profiles, list) and profiles else {}
@@ -105,17 +100,15 @@ class BagPlayer(Node):
         self._pose_cv = threading.Condition()
         qos = _recorded_qos(Path(bag))
         self._pubs: dict[str, Any] = {}
-        try:
-            with self.file.open("rb") as f:
-                summary = make_reader(f).get_summary()
-        except _READ_ERRORS as err:
-            raise BagError(f"{self.file} is corrupt or truncated ({type(err).__name__}: {err})") from err
-        if summary is None:
-            raise BagError(f"{self.file} has no summary section (truncated?)")
-        for channel in summary.channels.values():
-            schema = summary.schemas[channel.schema_id]
+        self._index = open_index(self.file)
+        self._order = sorted(self._index.messages, key=lambda m: m.log_time)  # stable: file order breaks ties
+        self._topic = {cid: ch.topic for cid, ch in self._index.channels.items()}
+        for channel in self._index.channels.values():
+            if channel.schema is None:
+                raise BagError(f"{self.file}: {channel.topic} has no schema; cannot publish it")
             profile = qos.get(channel.topic, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
-            self._pubs[channel.topic] = self.create_publisher(_message_class(schema.name), channel.topic, profile)
+            msg_class = _message_class(channel.schema.name)
+            self._pubs[channel.topic] = self.create_publisher(msg_class, channel.topic, profile)
         self._clock_pub = self.create_publisher(Clock, "/clock", 10) if clock and "/clock" not in self._pubs else None
         if lockstep:
             self.create_subscription(PoseStamped, pose_topic, self._on_pose, 100)
@@ -126,6 +119,11 @@ class BagPlayer(Node):
             self._poses.add(stamp_to_ns(msg.header.stamp))
             self.stats.poses_received += 1
             self._pose_cv.notify_all()
+
+    def destroy_node(self) -> None:
+        """Close the bag, then destroy the node."""
+        self._index.close()
+        super().destroy_node()
 
     def stop(self) -> None:
         """Make :meth:`play` return soon."""
@@ -143,17 +141,11 @@ class BagPlayer(Node):
             time.sleep(0.05)
         return True
 
-    def _messages(self) -> Iterator[tuple[str, int, bytes]]:
-        with self.file.open("rb") as f:
-            reader = make_reader(f)
-            start = None
-            try:
-                for _, channel, message in reader.iter_messages(log_time_order=True):
-                    start = message.log_time if start is None else start
-                    if message.log_time - start >= self.start_offset_ns:
-                        yield channel.topic, message.log_time, message.data
-            except _READ_ERRORS as err:
-                raise BagError(f"{self.file} is corrupt or truncated ({type(err).__name__}: {err})") from err
+    def _messages(self) -> Iterator[tuple[str, MessageRef]]:
+        start = self._order[0].log_time if self._order else 0
+        for ref in self._order:
+            if ref.log_time - start >= self.start_offset_ns:
+                yield self._topic[ref.channel_id], ref
 
     def play(self) -> PlayStats:
         """Replay once (or until stopped with ``loop``); returns counters."""
@@ -165,7 +157,8 @@ class BagPlayer(Node):
     def _play_once(self) -> None:
         wall0 = bag0 = None
         pending_frame: int | None = None  # lockstep: the colour frame whose pose we still wait for
-        for topic, log_time, data in self._messages():
+        for topic, ref in self._messages():
+            log_time = ref.log_time
             if self._stop.is_set():
                 return
             if pending_frame is not None and topic == self.topics.color:  # wait before the next frame starts
@@ -178,12 +171,12 @@ class BagPlayer(Node):
                     return
             if self._clock_pub is not None:
                 self._clock_pub.publish(Clock(clock=rclpy.time.Time(nanoseconds=log_time).to_msg()))
-            self._pubs[topic].publish(data)
+            self._pubs[topic].publish(self._index.payload(ref))
             self.stats.messages += 1
             if topic == self.topics.color:
                 self.stats.frames += 1
                 if self.lockstep:
-                    pending_frame = _header_stamp(data)
+                    pending_frame = ref.stamp_ns  # None (no header): nothing to wait for
         if pending_frame is not None:
             self._wait_pose(pending_frame)
 

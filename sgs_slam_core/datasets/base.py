@@ -127,7 +127,7 @@ def read_depth_png(path: Path, scale: float) -> np.ndarray:  # [H, W] float32 me
     raw = _read_unchanged(path, "depth")
     if raw.dtype != np.uint16:
         raise DatasetError(f"depth image {path} must be 16-bit, got {raw.dtype}")
-    return (raw.astype(np.float32) / np.float32(scale)).astype(np.float32)
+    return np.divide(raw, np.float32(scale), dtype=np.float32)  # one pass, same values as float32 / float32
 
 
 def read_label_png(path: Path) -> np.ndarray:  # [H, W] int32
