@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import struct
+import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -116,6 +117,7 @@ class McapIndex:
             self._pending: dict[int, tuple[int, str, str]] = {}  # channel id -> (schema id, topic, encoding)
             self._chunks: list[tuple[int, int, int, str]] = []  # (file offset, length, uncompressed, compression)
             self._cache: OrderedDict[int, bytes] = OrderedDict()
+            self._cache_lock = threading.Lock()  # readers may be called from worker threads
             self.messages: list[MessageRef] = []
             self.truncated_at: int | None = None
             self._walk()
@@ -209,9 +211,10 @@ class McapIndex:
 
     # ------------------------------------------------------------------ access
     def _chunk_data(self, chunk_no: int) -> bytes:
-        if chunk_no in self._cache:
-            self._cache.move_to_end(chunk_no)
-            return self._cache[chunk_no]
+        with self._cache_lock:
+            if chunk_no in self._cache:
+                self._cache.move_to_end(chunk_no)
+                return self._cache[chunk_no]
         start, length, uncompressed, compression = self._chunks[chunk_no]
         try:
             data = _decompressor(compression)(self._pread(length, start), uncompressed)
@@ -221,9 +224,10 @@ class McapIndex:
             raise BagError(f"{self.path}: chunk at byte {start} does not decompress ({err})") from err
         if len(data) != uncompressed:
             raise BagError(f"{self.path}: chunk at byte {start} decompresses to {len(data)} of {uncompressed} bytes")
-        self._cache[chunk_no] = data
-        if len(self._cache) > _CHUNK_CACHE:
-            self._cache.popitem(last=False)
+        with self._cache_lock:
+            self._cache[chunk_no] = data
+            if len(self._cache) > _CHUNK_CACHE:
+                self._cache.popitem(last=False)
         return data
 
     def payload(self, ref: MessageRef) -> bytes:

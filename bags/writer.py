@@ -10,7 +10,10 @@ Compression is zstd at the storage (chunk) level, so plain MCAP readers still wo
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+import os
+from collections import deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +28,7 @@ from bags.layout import CAMERA_FRAME, MAP_FRAME, BagTopics
 from msg_adapters import c2w_to_pose, camera_info_fields, image_fields
 from msg_adapters.stamps import ns_to_stamp
 from sgs_slam_core.datasets.base import Dataset
+from sgs_slam_core.frame import Frame
 
 __all__ = ["DEPTH_UNITS_PER_M", "ConvertSummary", "convert"]
 
@@ -39,6 +43,21 @@ class ConvertSummary:
     frames: int
     bytes: int
     topics: tuple[str, ...]
+
+
+def _frames_ahead(dataset: Dataset, n: int, ahead: int = 6) -> Iterator[Frame]:
+    """Frames 0..n-1 in order, decoded ``ahead`` frames in advance on worker threads.
+
+    Image decoding releases the GIL, so PNG/JPEG reading overlaps the bag writing.
+    """
+    workers = max(1, min(4, os.cpu_count() or 1))
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="bag-convert") as pool:
+        pending: deque[Future[Frame]] = deque(pool.submit(dataset.__getitem__, i) for i in range(min(ahead, n)))
+        for i in range(n):
+            frame = pending.popleft().result()
+            if i + ahead < n:
+                pending.append(pool.submit(dataset.__getitem__, i + ahead))
+            yield frame
 
 
 def convert(
@@ -61,7 +80,6 @@ def convert(
     writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)
     if compress:
         writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-    first = dataset[0]
     written = [topics.color, topics.camera_info, topics.depth, topics.clock]
     with writer:
         conn = {
@@ -80,8 +98,7 @@ def convert(
         writer.set_custom_data("label_table", json.dumps(dataset.label_table.to_dict(), separators=(",", ":")))
         writer.set_custom_data("depth_units_per_metre", str(DEPTH_UNITS_PER_M))
         writer.set_custom_data("frames", str(n))
-        for i in range(n):
-            frame = first if i == 0 else dataset[i]
+        for i, frame in enumerate(_frames_ahead(dataset, n)):
             stamp = frame.stamp_ns
 
             def put(key: str, msg: object, stamp: int = stamp) -> None:
