@@ -6,6 +6,8 @@ homogeneous matrices; ``c2w`` maps camera (optical frame: x right, y down, z for
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import torch
 from torch import Tensor
 
@@ -126,9 +128,8 @@ def se3_from_rt(rot: Tensor, trans: Tensor) -> Tensor:  # [..., 3, 3], [..., 3] 
     _check_last(rot, (3, 3), "rotation")
     _check_last(trans, (3,), "translation")
     top = torch.cat([rot, trans[..., :, None]], dim=-1)
-    bottom = torch.zeros(*top.shape[:-2], 1, 4, dtype=top.dtype, device=top.device)
-    bottom[..., 0, 3] = 1
-    return torch.cat([top, bottom], dim=-2)
+    bottom = _constant(((0.0, 0.0, 0.0, 1.0),), top.dtype, top.device)
+    return torch.cat([top, bottom.expand(*top.shape[:-2], 1, 4)], dim=-2)
 
 
 def se3_inverse(pose: Tensor) -> Tensor:  # [..., 4, 4] -> [..., 4, 4]
@@ -146,24 +147,45 @@ def transform_points(pose: Tensor, points: Tensor) -> Tensor:  # [4, 4], [N, 3] 
     return points @ pose[:3, :3].transpose(0, 1) + pose[:3, 3]
 
 
+# Generators of so(3): skew(w) = sum_i w_i G_i, as one [3, 9] matrix (one matmul, not nine stacked scalars).
+_GENERATORS = ((0, 0, 0, 0, 0, -1, 0, 1, 0), (0, 0, 1, 0, 0, 0, -1, 0, 0), (0, -1, 0, 1, 0, 0, 0, 0, 0))
+# Taylor coefficients near 0 of sin(t)/t, (1 - cos t)/t^2, (t - sin t)/t^3: c0 + c1 t^2.
+_TAYLOR = ((1.0, 0.5, 1.0 / 6.0), (-1.0 / 6.0, -1.0 / 24.0, -1.0 / 120.0))
+
+
+@lru_cache(maxsize=32)
+def _constant(values: tuple, dtype: torch.dtype, device: torch.device) -> Tensor:
+    """A small constant tensor, made once per dtype and device (a fresh host-to-GPU copy would sync)."""
+    return torch.tensor(values, dtype=dtype, device=device)
+
+
 def _skew(w: Tensor) -> Tensor:  # [..., 3] -> [..., 3, 3]
-    zero = torch.zeros_like(w[..., 0])
-    x, y, z = w.unbind(-1)
-    rows = (zero, -z, y, z, zero, -x, -y, x, zero)
-    return torch.stack(rows, dim=-1).reshape(*w.shape[:-1], 3, 3)
+    return (w @ _constant(_GENERATORS, w.dtype, w.device)).reshape(*w.shape[:-1], 3, 3)
+
+
+def _rodrigues(omega: Tensor) -> tuple[Tensor, Tensor, Tensor]:  # [..., 3] -> 3 x [..., 1, 1]
+    """``(a, b, c)`` = sin(t)/t, (1 - cos t)/t^2, (t - sin t)/t^3 with t = |omega|.
+
+    A first-order Taylor expansion below t^2 = 1e-8 keeps values and gradients smooth at 0.
+    """
+    theta2 = (omega * omega).sum(-1, keepdim=True)[..., None]  # [..., 1, 1]
+    small = theta2 < 1e-8
+    t2 = torch.where(small, torch.ones_like(theta2), theta2)
+    t = t2.sqrt()
+    sin, one_minus_cos = torch.sin(t), 1 - torch.cos(t)
+    exact = torch.cat([sin / t, one_minus_cos / t2, (t - sin) / (t2 * t)], dim=-1)  # [..., 1, 3]
+    c0, c1 = (_constant(c, omega.dtype, omega.device) for c in _TAYLOR)
+    coef = torch.where(small, c0 + c1 * theta2, exact).unsqueeze(-1)  # [..., 1, 3, 1]
+    a, b, c = coef.unbind(-2)
+    return a, b, c
 
 
 def so3_exp(omega: Tensor) -> Tensor:  # [..., 3] axis-angle (rad) -> [..., 3, 3]
     """Rodrigues' formula with a Taylor expansion near zero (smooth gradients at the identity)."""
     _check_last(omega, (3,), "axis-angle")
-    theta2 = (omega * omega).sum(-1, keepdim=True)[..., None]  # [..., 1, 1]
-    small = theta2 < 1e-8
-    theta2_safe = torch.where(small, torch.ones_like(theta2), theta2)
-    theta = theta2_safe.sqrt()
-    a = torch.where(small, 1 - theta2 / 6, torch.sin(theta) / theta)
-    b = torch.where(small, 0.5 - theta2 / 24, (1 - torch.cos(theta)) / theta2_safe)
+    a, b, _ = _rodrigues(omega)
     k = _skew(omega)
-    eye = torch.eye(3, dtype=omega.dtype, device=omega.device).expand_as(k)
+    eye = torch.eye(3, dtype=omega.dtype, device=omega.device)
     return eye + a * k + b * (k @ k)
 
 
@@ -181,14 +203,10 @@ def se3_exp(xi: Tensor) -> Tensor:  # [..., 6] (rho, phi) -> [..., 4, 4]
     """Exponential map of se(3); ``rho`` is the translation part (m), ``phi`` the rotation (rad)."""
     _check_last(xi, (6,), "se(3) vector")
     rho, phi = xi[..., :3], xi[..., 3:]
-    rot = so3_exp(phi)
-    theta2 = (phi * phi).sum(-1, keepdim=True)[..., None]
-    small = theta2 < 1e-8
-    theta2_safe = torch.where(small, torch.ones_like(theta2), theta2)
-    theta = theta2_safe.sqrt()
-    b = torch.where(small, 0.5 - theta2 / 24, (1 - torch.cos(theta)) / theta2_safe)
-    c = torch.where(small, 1.0 / 6 - theta2 / 120, (theta - torch.sin(theta)) / (theta2_safe * theta))
+    a, b, c = _rodrigues(phi)
     k = _skew(phi)
-    eye = torch.eye(3, dtype=xi.dtype, device=xi.device).expand_as(k)
-    v = eye + b * k + c * (k @ k)
+    kk = k @ k
+    eye = torch.eye(3, dtype=xi.dtype, device=xi.device)
+    rot = eye + a * k + b * kk
+    v = eye + b * k + c * kk  # left Jacobian of SO(3)
     return se3_from_rt(rot, (v @ rho[..., None])[..., 0])

@@ -132,16 +132,10 @@ def render(
     cam = to_camera(gaussians, w2c, with_semantics)
     if backend == "gsplat":
         feats, depth, sil = gsplat_backend.rasterize(cam, intrinsics, settings)
+        color, semantic = feats[..., :3], feats[..., 3:]
     else:
-        feats, depth, sil = _rasterize_tiled(cam, intrinsics, settings, compiled=backend == "cpu")
-    s = feats.shape[-1] - 3
-    return RenderOutput(
-        color=feats[..., :3],
-        depth=depth,
-        silhouette=sil,
-        semantic=feats[..., 3:] if s > 0 else feats.new_zeros(*feats.shape[:2], 0),
-        backend=backend,
-    )
+        color, semantic, depth, sil = _rasterize_tiled(cam, intrinsics, settings, compiled=backend == "cpu")
+    return RenderOutput(color=color, depth=depth, silhouette=sil, semantic=semantic, backend=backend)
 
 
 def camera_covariances(cam: CameraGaussians) -> Tensor:  # [N, 3, 3]
@@ -155,17 +149,35 @@ def camera_covariances(cam: CameraGaussians) -> Tensor:  # [N, 3, 3]
 
 def _rasterize_tiled(
     cam: CameraGaussians, intrinsics: Intrinsics, settings: RenderSettings, compiled: bool
-) -> tuple[Tensor, Tensor, Tensor]:
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:  # colour [H, W, 3], semantic [H, W, S], depth [H, W], sil [H, W]
     """Projection in torch (autograd), then the compiled or the torch compositor.
 
     Isotropic maps on the compiled backend skip the torch projection: projection, binning and
     compositing (and their gradients) all run in the extension.
     """
+    k, d = intrinsics, cam.features.shape[1]
+    groups = (3, d - 3)  # colour, semantics: separate outputs, so no slice of the image needs a backward
     if compiled and cam.quats is None:
-        img, sil = cpu_backend.render_isotropic_cpu(
-            cam.means, cam.scales, cam.opacities, cam.features, intrinsics, settings
+        color, semantic, depth, sil = cpu_backend.render_isotropic_cpu(
+            cam.means, cam.scales, cam.opacities, cam.features, intrinsics, settings, groups
         )
-        return img[..., :-1], img[..., -1], sil
+        return color, semantic, depth.view(k.height, k.width), sil
+    if cam.quats is None:
+        proj = project_gaussians(cam.means, cam.opacities, intrinsics, settings, scales=cam.scales)
+    else:
+        covars = camera_covariances(cam)
+        proj = project_gaussians(cam.means, cam.opacities, intrinsics, settings, covars_cam=covars)
+    feats = torch.cat([cam.features, proj.depths[:, None]], dim=1)
+    if compiled:
+        color, semantic, depth, sil = cpu_backend.composite_cpu(
+            proj.means2d, proj.conics, proj.opacities, feats, proj.radii, proj.depths, k.width, k.height, settings,
+            (*groups, 1),
+        )  # fmt: skip
+        return color, semantic, depth.view(k.height, k.width), sil
+    plan = plan_tiles(proj.means2d, proj.radii, proj.depths, k.width, k.height, settings.tile_size,
+                      settings.chunk_elements)  # fmt: skip
+    img, sil = composite(proj.means2d, proj.conics, proj.opacities, feats, plan, settings)
+    return img[..., :3], img[..., 3:-1], img[..., -1], sil
     if cam.quats is None:
         proj = project_gaussians(cam.means, cam.opacities, intrinsics, settings, scales=cam.scales)
     else:

@@ -294,6 +294,8 @@ void backward_tile(const Settings& s, int tile, const int64_t* offsets, const in
   std::vector<int32_t> pack_count(npix / W, 0);  // slots blended by the pack's longest-blending pixel
   for (int p = 0; p < npix; ++p) pack_count[p / W] = std::max(pack_count[p / W], static_cast<int32_t>(nblend[p]));
   std::vector<V<T>> gf(D);
+  // Slots past every pixel's stop contribute nothing; their rows are zeroed here (rows are not pre-filled).
+  std::fill(out + (view.begin + max_count) * stride, out + view.end * stride, T(0));
   for (int64_t k = max_count - 1; k >= 0; --k) {
     const int64_t i = view.begin + k;
     const int64_t g = gids[i];
@@ -617,7 +619,7 @@ torch::Tensor composite_backward(torch::Tensor means2d, torch::Tensor conics, to
   grad_img = grad_img.contiguous().to(features.scalar_type());
   grad_sil = grad_sil.contiguous().to(features.scalar_type());
   const int64_t stride = kGeomGrads + features.size(1);
-  auto rows = torch::zeros({gids.size(0), stride}, features.options());
+  auto rows = torch::empty({gids.size(0), stride}, features.options());  // every row written by its tile
   auto out = torch::zeros({means2d.size(0), stride}, features.options());
   const int64_t* off = offsets.data_ptr<int64_t>();
   const int32_t* gid = gids.data_ptr<int32_t>();
