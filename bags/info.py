@@ -11,7 +11,9 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from bags.cdr_image import decode_image
 from bags.errors import BagError
+from bags.mcap_index import McapIndex
 from bags.reader import bag_file, read_custom_data
 
 __all__ = ["BagInfo", "TopicInfo", "bag_info"]
@@ -39,6 +41,7 @@ class BagInfo:
     end_ns: int
     topics: list[TopicInfo]
     custom: dict[str, str] = field(default_factory=dict)
+    truncated_at: int | None = None  # byte offset of the first incomplete record (no summary section)
 
     @property
     def duration_s(self) -> float:
@@ -48,9 +51,13 @@ class BagInfo:
     def format(self) -> str:
         """Human-readable table."""
         lines = [f"bag:      {self.path}", f"duration: {self.duration_s:.3f} s ({self.start_ns} .. {self.end_ns} ns)"]
+        if self.truncated_at is not None:
+            lines.append(
+                f"WARNING:  truncated at byte {self.truncated_at}; counts are of the complete records before it"
+            )
         if self.custom.get("dataset"):
             lines.append(f"dataset:  {self.custom['dataset']}")
-        width = max(len(t.name) for t in self.topics)
+        width = max((len(t.name) for t in self.topics), default=0)
         lines.append("topics:")
         for t in self.topics:
             extra = f"  {t.encoding} {t.size}" if t.encoding else ""
@@ -63,7 +70,11 @@ class BagInfo:
 
 
 def bag_info(path: str | Path) -> BagInfo:
-    """Read the summary (and the first message of every image topic for its encoding)."""
+    """Read the summary (and the first message of every image topic for its encoding).
+
+    A bag without a readable summary (a recording that was never closed) is described from its
+    complete records instead, with ``truncated_at`` set.
+    """
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path} does not exist")
@@ -71,9 +82,12 @@ def bag_info(path: str | Path) -> BagInfo:
     try:
         with file.open("rb") as f:
             reader = make_reader(f, decoder_factories=[DecoderFactory()])
-            summary = reader.get_summary()
+            try:
+                summary = reader.get_summary()
+            except _READ_ERRORS:
+                summary = None  # no readable footer: a recording that was not closed
             if summary is None or summary.statistics is None:
-                raise BagError(f"{file} has no summary section (truncated, or written without one)")
+                return _info_by_walking(path, file)
             stats = summary.statistics
             topics = []
             for cid, channel in sorted(summary.channels.items(), key=lambda kv: kv[1].topic):
@@ -89,3 +103,28 @@ def bag_info(path: str | Path) -> BagInfo:
     except _READ_ERRORS as err:
         raise BagError(f"{file} is corrupt or truncated ({type(err).__name__}: {err})") from err
     return BagInfo(path, stats.message_start_time, stats.message_end_time, topics, read_custom_data(path))
+
+
+def _info_by_walking(path: Path, file: Path) -> BagInfo:
+    """Counts and encodings from the records themselves (a bag without a summary, e.g. truncated)."""
+    index = McapIndex(file)
+    try:
+        counts: dict[int, int] = {}
+        first: dict[int, int] = {}
+        for i, ref in enumerate(index.messages):
+            counts[ref.channel_id] = counts.get(ref.channel_id, 0) + 1
+            first.setdefault(ref.channel_id, i)
+        topics = []
+        for cid, ch in sorted(index.channels.items(), key=lambda kv: kv[1].topic):
+            info = TopicInfo(ch.topic, ch.schema.name if ch.schema else "?", counts.get(cid, 0))
+            if info.msgtype == "sensor_msgs/msg/Image" and info.count:
+                try:
+                    img = decode_image(index.payload(index.messages[first[cid]]))
+                    info.encoding, info.size = img.encoding, f"{img.width}x{img.height}"
+                except ValueError:
+                    info.encoding = "?"
+            topics.append(info)
+        times = [m.log_time for m in index.messages] or [0]
+        return BagInfo(path, min(times), max(times), topics, read_custom_data(path), index.truncated_at)
+    finally:
+        index.close()

@@ -189,6 +189,8 @@ def test_corrupt_and_truncated_bags_give_clear_errors(tiny_scene, tmp_path):
     mcap.write_bytes(data[: len(data) // 2])  # truncated in the middle of the data
     with pytest.raises(BagError, match=r"corrupt or truncated|no synchronised"):
         open_bag(bag)
+    info = bag_info(bag)  # no footer: described from the complete records (none: one chunk was cut)
+    assert info.truncated_at is not None and "truncated at byte" in info.format()
     mcap.write_bytes(b"garbage" * 100)
     with pytest.raises(BagError, match="corrupt or truncated"):
         open_bag(bag)

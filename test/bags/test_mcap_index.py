@@ -11,6 +11,7 @@ from rosbags.typesys import Stores, get_typestore
 from bags import BagError, convert, open_bag
 from bags import rosbags_messages as rm
 from bags.cdr_image import decode_image
+from bags.info import bag_info
 from bags.mcap_index import McapIndex
 from msg_adapters import depth_from_image, image_fields, rgb_from_image
 from sgs_slam_core.datasets import open_dataset
@@ -84,6 +85,10 @@ def test_truncated_file_is_reported_and_garbage_refused(tmp_path):
     index = McapIndex(path)
     assert index.truncated_at is not None and 0 < len(index.messages) < 12
     index.close()
+    info = bag_info(path)  # the footer is gone: counted from the complete chunks
+    assert info.truncated_at == index.truncated_at
+    assert sum(t.count for t in info.topics) == len(index.messages)
+    assert {t.encoding for t in info.topics} == {"rgb8"} and info.topics[0].size == "41x30"
     path.write_bytes(b"garbage" * 10)
     with pytest.raises(BagError, match="not an MCAP file"):
         McapIndex(path)
