@@ -5,7 +5,7 @@ query and copies every record through ``BytesIO``; reading a 640x480 RGB-D frame
 ~10 ms. Here the file's records are walked once (MCAP spec, https://mcap.dev/spec): schemas,
 channels, and for every message its log time, header stamp and position. A message in an
 uncompressed chunk is then one ``pread`` of exactly its payload; compressed chunks (zstd, lz4) are
-decompressed once and the last few kept. The walk needs no summary section, so bags without one
+decompressed once, checked against their CRC, and the last few kept. The walk needs no summary section, so bags without one
 (``ros2 bag record`` killed before it closed the file) index up to the first incomplete record,
 which is reported as ``truncated_at``.
 """
@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import struct
 import threading
+import zlib
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -115,7 +116,8 @@ class McapIndex:
             self._schemas: dict[int, Schema] = {}
             self.channels: dict[int, McapChannel] = {}
             self._pending: dict[int, tuple[int, str, str]] = {}  # channel id -> (schema id, topic, encoding)
-            self._chunks: list[tuple[int, int, int, str]] = []  # (file offset, length, uncompressed, compression)
+            # (file offset, length, uncompressed length, CRC32 of the uncompressed records or 0, compression)
+            self._chunks: list[tuple[int, int, int, int, str]] = []
             self._cache: OrderedDict[int, bytes] = OrderedDict()
             self._cache_lock = threading.Lock()  # readers may be called from worker threads
             self.messages: list[MessageRef] = []
@@ -154,10 +156,12 @@ class McapIndex:
         self.truncated_at = pos  # ended without a data-end or footer record
 
     def _walk_chunk(self, body: int, length: int) -> None:
-        head = self._pread(_CHUNK.size + 64, body)
-        if len(head) < _CHUNK.size:
-            raise BagError(f"{self.path} @ {body}: chunk header runs past the file (corrupt or truncated)")
-        _, _, uncompressed, _, clen = _CHUNK.unpack_from(head)
+        head = self._pread(_CHUNK.size, body)
+        if len(head) < _CHUNK.size or length < _CHUNK.size + 8:
+            raise BagError(f"{self.path} @ {body}: chunk header runs past the chunk (corrupt)")
+        _, _, uncompressed, crc, clen = _CHUNK.unpack(head)
+        if clen > 16:  # "", "zstd", "lz4"
+            raise BagError(f"{self.path} @ {body}: chunk compression name of {clen} bytes (corrupt)")
         compression = self._pread(clen, body + _CHUNK.size).decode("utf-8", "replace")
         records_len_at = body + _CHUNK.size + clen
         (records_len,) = _U64.unpack(self._pread(8, records_len_at))
@@ -168,7 +172,7 @@ class McapIndex:
             self._walk_records(lambda n, at: self._pread(n, start + at), records_len, -1, start)
             return
         chunk_no = len(self._chunks)
-        self._chunks.append((start, records_len, uncompressed, compression))
+        self._chunks.append((start, records_len, uncompressed, crc, compression))
         data = self._chunk_data(chunk_no)
         self._walk_records(lambda n, at: data[at : at + n], len(data), chunk_no, 0)
 
@@ -215,7 +219,7 @@ class McapIndex:
             if chunk_no in self._cache:
                 self._cache.move_to_end(chunk_no)
                 return self._cache[chunk_no]
-        start, length, uncompressed, compression = self._chunks[chunk_no]
+        start, length, uncompressed, crc, compression = self._chunks[chunk_no]
         try:
             data = _decompressor(compression)(self._pread(length, start), uncompressed)
         except BagError:
@@ -224,6 +228,8 @@ class McapIndex:
             raise BagError(f"{self.path}: chunk at byte {start} does not decompress ({err})") from err
         if len(data) != uncompressed:
             raise BagError(f"{self.path}: chunk at byte {start} decompresses to {len(data)} of {uncompressed} bytes")
+        if crc and zlib.crc32(data) != crc:
+            raise BagError(f"{self.path}: chunk at byte {start} fails its CRC check (corrupt)")
         with self._cache_lock:
             self._cache[chunk_no] = data
             if len(self._cache) > _CHUNK_CACHE:

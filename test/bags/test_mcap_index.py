@@ -155,3 +155,14 @@ def test_depth_from_a_cdr_view_equals_the_copied_decode():
     assert np.array_equal(depth_from_image(decode_image(payload)), depth_from_image(theirs))
     rgb = np.arange(72, dtype=np.uint8).reshape(4, 6, 3)
     assert np.array_equal(rgb_from_image(decode_image(image_cdr(rgb, "rgb8", 0, "x"))), rgb)
+
+
+def test_corrupt_compressed_chunk_is_a_bag_error(tmp_path):
+    path = tmp_path / "x.mcap"
+    write_mcap(path, CompressionType.ZSTD)
+    data = bytearray(path.read_bytes())
+    middle = len(data) // 3
+    data[middle : middle + 64] = bytes(64)  # zero a run inside the first chunk's compressed records
+    path.write_bytes(bytes(data))
+    with pytest.raises(BagError, match="corrupt|decompress"):
+        McapIndex(path)
