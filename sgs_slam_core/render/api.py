@@ -178,18 +178,3 @@ def _rasterize_tiled(
                       settings.chunk_elements)  # fmt: skip
     img, sil = composite(proj.means2d, proj.conics, proj.opacities, feats, plan, settings)
     return img[..., :3], img[..., 3:-1], img[..., -1], sil
-    if cam.quats is None:
-        proj = project_gaussians(cam.means, cam.opacities, intrinsics, settings, scales=cam.scales)
-    else:
-        covars = camera_covariances(cam)
-        proj = project_gaussians(cam.means, cam.opacities, intrinsics, settings, covars_cam=covars)
-    feats = torch.cat([cam.features, proj.depths[:, None]], dim=1)
-    k = intrinsics
-    if compiled:
-        img, sil = cpu_backend.composite_cpu(proj.means2d, proj.conics, proj.opacities, feats, proj.radii, proj.depths,
-                                             k.width, k.height, settings)  # fmt: skip
-    else:
-        plan = plan_tiles(proj.means2d, proj.radii, proj.depths, k.width, k.height, settings.tile_size,
-                          settings.chunk_elements)  # fmt: skip
-        img, sil = composite(proj.means2d, proj.conics, proj.opacities, feats, plan, settings)
-    return img[..., :-1], img[..., -1], sil
