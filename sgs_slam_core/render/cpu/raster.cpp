@@ -9,7 +9,8 @@
 //
 // Parallelism: OpenMP over tiles; each tile is processed by one thread, sequentially over its
 // depth-sorted Gaussians, with the tile's pixels in explicit SIMD vectors (GCC vector extensions,
-// lowered to AVX-512, AVX2 or SSE by -march=native). Backward writes one gradient row per
+// lowered to AVX-512, AVX2 or SSE by -march=native). The forward runs pack by pack with the sums in
+// registers; the backward runs Gaussian by Gaussian over the packs. Backward writes one gradient row per
 // (tile, Gaussian) intersection, then sums each Gaussian's rows in intersection order; nothing is
 // accumulated across threads, so results do not depend on the thread count or scheduling.
 
@@ -20,6 +21,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <type_traits>
 #include <vector>
 
 namespace {
@@ -200,73 +202,83 @@ void pixel_grid(int ts, T* px, T* py) {
   }
 }
 
-template <typename T>
+// Forward of one tile, pack by pack: each pack of W pixels runs through the tile's depth-sorted
+// Gaussians with its accumulators in registers (the channel count DC is a template argument for the
+// common 4 = colour + depth and 7 = colour + 3 semantics + depth; 0 = any, read at run time). The
+// splat constants are gathered once per tile. Per pixel the blending order is the same as a
+// Gaussian-major loop, so results do not depend on the loop order.
+template <typename T, int DC>
 void forward_tile(const Settings& s, int tile, const int64_t* offsets, const int32_t* gids, const T* m2d, const T* con,
                   const T* op, const T* rad, const T* feat, T* img, T* sil, T* t_final, int32_t* count, Scratch<T>& sc) {
   constexpr int W = Pack<T>::W;
-  const int ts = s.tile, npix = ts * ts, D = s.channels, npack = npix / W;
+  const int ts = s.tile, npix = ts * ts, D = DC > 0 ? DC : s.channels, npack = npix / W;
   const TileView view = tile_view(s, tile, offsets);
-  sc.reset(static_cast<size_t>(npix) * (D + 5));
-  T* acc = sc.take(static_cast<size_t>(D) * npix);  // [D, npix]
-  T* trans = sc.take(npix);
-  T* stop_at = sc.take(npix);  // slots blended before the pixel stopped; "never" = a huge value
+  const int64_t K = view.end - view.begin;
+  sc.reset(static_cast<size_t>(K) * 7 + static_cast<size_t>(npix) * 2);
+  T* su = sc.take(K);
+  T* sv = sc.take(K);
+  T* sa = sc.take(K);
+  T* sb2 = sc.take(K);
+  T* scc = sc.take(K);
+  T* so = sc.take(K);
+  T* sr = sc.take(K);
+  for (int64_t k = 0; k < K; ++k) {
+    const int64_t g = gids[view.begin + k];
+    const Splat<T> sp = splat_of(g, view, m2d, con, op);
+    su[k] = sp.u, sv[k] = sp.v, sa[k] = sp.A, sb2[k] = sp.B2, scc[k] = sp.C, so[k] = sp.o, sr[k] = rad[g];
+  }
   T* px = sc.take(npix);
   T* py = sc.take(npix);
   pixel_grid(ts, px, py);
-  std::fill(trans, trans + npix, T(1));
   const T never = T(1e30);
-  std::fill(stop_at, stop_at + npix, never);
   const T floor_t = static_cast<T>(std::max(s.t_min, 1e-30));
   const std::vector<PackBox> boxes = pack_boxes<T>(ts);
-  std::vector<uint8_t> done(npack, 0);
-  int live = npack;
-  for (int64_t i = view.begin; i < view.end && live > 0; ++i) {
-    const int64_t g = gids[i];
-    const Splat<T> sp = splat_of(g, view, m2d, con, op);
-    const T* f = feat + g * D;
-    const T slot = static_cast<T>(i - view.begin);
-    const bool check = (i - view.begin) % 16 == 15;
-    for (int pack = 0; pack < npack; ++pack) {
-      if (done[pack] || !pack_hit(boxes[pack], float(sp.u), float(sp.v), float(rad[g]))) continue;
-      const int b = pack * W;
+  V<T> acc_fixed[DC > 0 ? DC : 1];
+  std::vector<V<T>> acc_any(DC > 0 ? 0 : D);
+  V<T>* acc = DC > 0 ? acc_fixed : acc_any.data();
+  for (int pack = 0; pack < npack; ++pack) {
+    const int b = pack * W;
+    const PackBox box = boxes[pack];
+    const V<T> x = load(px + b), y = load(py + b);
+    for (int c = 0; c < D; ++c) acc[c] = V<T>{};
+    V<T> t = splat(T(1)), stopped = splat(never);
+    for (int64_t k = 0; k < K; ++k) {
+      if (!pack_hit(box, float(su[k]), float(sv[k]), float(sr[k]))) continue;
+      const Splat<T> sp{su[k], sv[k], sa[k], sb2[k], scc[k], so[k]};
       V<T> dx, dy;
-      V<T> a = raw_alpha(s, sp, load(px + b), load(py + b), dx, dy);
-      const V<T> t = load(trans + b);
-      const V<T> stopped = load(stop_at + b);
+      V<T> a = raw_alpha(s, sp, x, y, dx, dy);
       const auto was = stopped < never;
       const auto now = (t * (T(1) - a) < floor_t) | was;
       a = now ? splat(T(0)) : a;
-      store(stop_at + b, (now & ~was) ? splat(slot) : stopped);
+      stopped = (now & ~was) ? splat(static_cast<T>(k)) : stopped;
       const V<T> w = a * t;
-      for (int c = 0; c < D; ++c) store(acc + c * npix + b, load(acc + c * npix + b) + w * f[c]);
-      store(trans + b, t * (T(1) - a));
-      if (check && hsum(now ? splat(T(0)) : splat(T(1))) == T(0)) {
-        done[pack] = 1;  // every pixel of this pack has stopped (checked every 16 slots: lane sums cost)
-        --live;
-      }
+      const T* f = feat + static_cast<int64_t>(gids[view.begin + k]) * D;
+      for (int c = 0; c < D; ++c) acc[c] += w * f[c];
+      t = t * (T(1) - a);
+      if ((k & 15) == 15 && hsum(now ? splat(T(0)) : splat(T(1))) == T(0)) break;  // every pixel has stopped
     }
-  }
-  const T total = static_cast<T>(view.end - view.begin);
-  for (int p = 0; p < npix; ++p) {
-    const int x = view.x0 + p % ts, y = view.y0 + p / ts;
-    if (x >= s.width || y >= s.height) continue;
-    const int64_t pix = static_cast<int64_t>(y) * s.width + x;
-    for (int c = 0; c < D; ++c) img[pix * D + c] = acc[c * npix + p];
-    sil[pix] = T(1) - trans[p];
-    t_final[pix] = trans[p];
-    count[pix] = static_cast<int32_t>(stop_at[p] < total ? stop_at[p] : total);
+    const T total = static_cast<T>(K);
+    for (int l = 0; l < W; ++l) {
+      const int p = b + l, px_ = view.x0 + p % ts, py_ = view.y0 + p / ts;
+      if (px_ >= s.width || py_ >= s.height) continue;
+      const int64_t pix = static_cast<int64_t>(py_) * s.width + px_;
+      for (int c = 0; c < D; ++c) img[pix * D + c] = acc[c][l];
+      sil[pix] = T(1) - t[l];
+      t_final[pix] = t[l];
+      count[pix] = static_cast<int32_t>(stopped[l] < total ? stopped[l] : total);
+    }
   }
 }
 
 // One back-to-front pass (3DGS-style): the forward saved each pixel's final transmittance and how
 // many slots it blended; T_i is recovered as T_{i+1} / (1 - alpha_i) and the suffix sum
 // S_i = sum_{j>i} w_j c_j grows as we go, so dL/dalpha_i = T_i c_i - S_i / (1 - alpha_i).
-template <typename T>
+template <typename T, int DC>
 void backward_tile(const Settings& s, int tile, const int64_t* offsets, const int32_t* gids, const T* m2d, const T* con,
                    const T* op, const T* rad, const T* feat, const T* g_img, const T* g_sil, const T* t_final,
                    const int32_t* count, T* out, Scratch<T>& sc) {
   constexpr int W = Pack<T>::W;
-  const int ts = s.tile, npix = ts * ts, D = s.channels, stride = kGeomGrads + D;
+  const int ts = s.tile, npix = ts * ts, D = DC > 0 ? DC : s.channels, stride = kGeomGrads + D;
   const TileView view = tile_view(s, tile, offsets);
   sc.reset(static_cast<size_t>(npix) * (D + 7));
   T* gp = sc.take(static_cast<size_t>(D) * npix);  // [D, npix] upstream gradient of the features
@@ -293,7 +305,9 @@ void backward_tile(const Settings& s, int tile, const int64_t* offsets, const in
   const std::vector<PackBox> boxes = pack_boxes<T>(ts);
   std::vector<int32_t> pack_count(npix / W, 0);  // slots blended by the pack's longest-blending pixel
   for (int p = 0; p < npix; ++p) pack_count[p / W] = std::max(pack_count[p / W], static_cast<int32_t>(nblend[p]));
-  std::vector<V<T>> gf(D);
+  V<T> gf_fixed[DC > 0 ? DC : 1];  // per-Gaussian feature gradients; in registers when DC is known
+  std::vector<V<T>> gf_any(DC > 0 ? 0 : D);
+  V<T>* gf = DC > 0 ? gf_fixed : gf_any.data();
   // Slots past every pixel's stop contribute nothing; their rows are zeroed here (rows are not pre-filled).
   std::fill(out + (view.begin + max_count) * stride, out + view.end * stride, T(0));
   for (int64_t k = max_count - 1; k >= 0; --k) {
@@ -303,7 +317,7 @@ void backward_tile(const Settings& s, int tile, const int64_t* offsets, const in
     const T* f = feat + g * D;
     const T slot = static_cast<T>(k);
     V<T> vsx{}, vsy{}, vsxx{}, vsxy{}, vsyy{}, vsa{};
-    std::fill(gf.begin(), gf.end(), V<T>{});
+    for (int c = 0; c < D; ++c) gf[c] = V<T>{};
     for (int pack = 0; pack < npix / W; ++pack) {
       // Past every pixel's stop, or outside the footprint: alpha is 0 and nothing changes.
       if (k >= pack_count[pack] || !pack_hit(boxes[pack], float(sp.u), float(sp.v), float(rad[g]))) continue;
@@ -345,6 +359,18 @@ void backward_tile(const Settings& s, int tile, const int64_t* offsets, const in
   }
 }
 
+// Calls fn(std::integral_constant<int, DC>) with DC = 7 (colour, 3 semantics, depth), 4 (colour,
+// depth) or 0 (any count, read at run time): the kernels keep per-channel sums in registers when DC > 0.
+template <typename F>
+void with_channels(int channels, F&& fn) {
+  if (channels == 7)
+    fn(std::integral_constant<int, 7>{});
+  else if (channels == 4)
+    fn(std::integral_constant<int, 4>{});
+  else
+    fn(std::integral_constant<int, 0>{});
+}
+
 template <typename T>
 void forward_all(const Settings& s, const int64_t* off, const int32_t* gid, const T* m, const T* c, const T* o,
                  const T* r, const T* f, T* img, T* sil, T* t_final, int32_t* count, int threads) {
@@ -353,8 +379,12 @@ void forward_all(const Settings& s, const int64_t* off, const int32_t* gid, cons
   {
     Scratch<T> scratch;
 #pragma omp for schedule(dynamic, 4)
-    for (int t = 0; t < num_tiles; ++t)
-      if (off[t + 1] > off[t]) forward_tile<T>(s, t, off, gid, m, c, o, r, f, img, sil, t_final, count, scratch);
+    for (int t = 0; t < num_tiles; ++t) {
+      if (off[t + 1] == off[t]) continue;
+      with_channels(s.channels, [&](auto dc) {
+        forward_tile<T, decltype(dc)::value>(s, t, off, gid, m, c, o, r, f, img, sil, t_final, count, scratch);
+      });
+    }
   }
 }
 
@@ -367,8 +397,12 @@ void backward_all(const Settings& s, const int64_t* off, const int32_t* gid, con
   {
     Scratch<T> scratch;
 #pragma omp for schedule(dynamic, 4)
-    for (int t = 0; t < num_tiles; ++t)
-      if (off[t + 1] > off[t]) backward_tile<T>(s, t, off, gid, m, c, o, r, f, gi, gs, t_final, count, out, scratch);
+    for (int t = 0; t < num_tiles; ++t) {
+      if (off[t + 1] == off[t]) continue;
+      with_channels(s.channels, [&](auto dc) {
+        backward_tile<T, decltype(dc)::value>(s, t, off, gid, m, c, o, r, f, gi, gs, t_final, count, out, scratch);
+      });
+    }
   }
 }
 
