@@ -5,9 +5,9 @@ query and copies every record through ``BytesIO``; reading a 640x480 RGB-D frame
 ~10 ms. Here the file's records are walked once (MCAP spec, https://mcap.dev/spec): schemas,
 channels, and for every message its log time, header stamp and position. A message in an
 uncompressed chunk is then one ``pread`` of exactly its payload; compressed chunks (zstd, lz4) are
-decompressed once, checked against their CRC, and the last few kept. The walk needs no summary section, so bags without one
-(``ros2 bag record`` killed before it closed the file) index up to the first incomplete record,
-which is reported as ``truncated_at``.
+decompressed once, checked against their CRC, and the last few kept. The walk needs no summary
+section, so bags without one (``ros2 bag record`` killed before it closed the file) index up to the
+first incomplete record, which is reported as ``truncated_at``.
 """
 
 from __future__ import annotations

@@ -164,5 +164,5 @@ def test_corrupt_compressed_chunk_is_a_bag_error(tmp_path):
     middle = len(data) // 3
     data[middle : middle + 64] = bytes(64)  # zero a run inside the first chunk's compressed records
     path.write_bytes(bytes(data))
-    with pytest.raises(BagError, match="corrupt|decompress"):
+    with pytest.raises(BagError, match=r"corrupt|decompress"):
         McapIndex(path)
