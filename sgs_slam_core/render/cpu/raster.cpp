@@ -406,22 +406,21 @@ void backward_all(const Settings& s, const int64_t* off, const int32_t* gid, con
   }
 }
 
-// Per-Gaussian sums of per-intersection rows, each Gaussian summing its rows in intersection
-// order (deterministic for any thread count).
+// Per-Gaussian sums of per-intersection rows, each Gaussian summing its rows in intersection order
+// (deterministic for any thread count). Rows are read in storage order (streaming, no gather); each
+// thread owns a range of Gaussian ids and skips the rows of the others.
 template <typename T>
 void reduce_rows(const T* rows, const int32_t* gids, int64_t num_isects, int64_t stride, int64_t n, T* out,
                  int threads) {
-  std::vector<int64_t> start(static_cast<size_t>(n) + 1, 0);
-  for (int64_t i = 0; i < num_isects; ++i) start[gids[i] + 1] += 1;
-  for (int64_t g = 0; g < n; ++g) start[g + 1] += start[g];
-  std::vector<int64_t> order(static_cast<size_t>(num_isects));
-  std::vector<int64_t> cursor(start.begin(), start.end() - 1);
-  for (int64_t i = 0; i < num_isects; ++i) order[cursor[gids[i]]++] = i;
-#pragma omp parallel for num_threads(threads) schedule(static)
-  for (int64_t g = 0; g < n; ++g) {
-    T* dst = out + g * stride;
-    for (int64_t j = start[g]; j < start[g + 1]; ++j) {
-      const T* src = rows + order[j] * stride;
+#pragma omp parallel num_threads(threads)
+  {
+    const int64_t parts = omp_get_num_threads(), part = omp_get_thread_num();
+    const int64_t lo = n * part / parts, hi = n * (part + 1) / parts;
+    for (int64_t i = 0; i < num_isects; ++i) {
+      const int64_t g = gids[i];
+      if (g < lo || g >= hi) continue;
+      T* dst = out + g * stride;
+      const T* src = rows + i * stride;
       for (int64_t c = 0; c < stride; ++c) dst[c] += src[c];
     }
   }
