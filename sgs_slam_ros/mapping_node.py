@@ -123,6 +123,8 @@ class MappingNode(Node):
 
     # ------------------------------------------------------------------ outputs
     def _on_mapped(self, frame: Frame, tracked: TrackOutcome, result: MapOutcome) -> None:
+        if not self.context.ok():  # shutting down: the publishers are gone
+            return
         self.mapped_rate.tick()
         self.last_mapped_stamp = tracked.stamp_ns
         if self.params["lockstep"]:

@@ -136,8 +136,7 @@ class SlamPipeline:
                 self._cv.notify_all()
             if outcome is None:
                 continue
-            for listener in self.pose_listeners:
-                listener(frame, outcome)
+            self._notify("publishing a pose", self.pose_listeners, frame, outcome)
             if self.map_enabled:
                 self.submit_job(MapJob(frame, outcome))
 
@@ -169,8 +168,18 @@ class SlamPipeline:
                 self.stats.mapped += int(result is not None)
                 self._cv.notify_all()
             if result is not None:
-                for listener in self.map_listeners:
-                    listener(job.frame, tracked, result)
+                self._notify("publishing the map", self.map_listeners, job.frame, tracked, result)
+
+    def _notify(self, stage: str, listeners: list[Callable[..., None]], *args: object) -> None:
+        """Call every listener; one that raises is logged and counted, and the worker goes on.
+
+        (E.g. a publisher whose context Ctrl-C shut down while this thread was still working.)
+        """
+        for listener in listeners:
+            try:
+                listener(*args)
+            except Exception as err:
+                self._error(stage, err)
 
     def _error(self, stage: str, err: Exception) -> None:
         self.stats.errors += 1

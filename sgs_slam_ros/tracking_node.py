@@ -31,6 +31,8 @@ from sgs_slam_ros.runtime import run_nodes
 
 __all__ = ["TrackingNode", "main"]
 
+_REPUBLISH_S = 1.0  # s: lockstep with a remote mapper re-sends the last pose this often while waiting for its map
+
 OK, WARN, ERROR = 0, 1, 2
 
 
@@ -47,6 +49,7 @@ class TrackingNode(Node):
         self.params = declare(self, COMMON + TRACKING)
         self.map_frame = self.params["map_frame"]
         self._remote_map_stamp = -1
+        self._last_pose_sent = time.monotonic()
         slam = Slam(slam_config(self.params))
         log = self.get_logger().error
         if standalone:
@@ -103,14 +106,30 @@ class TrackingNode(Node):
             self.pipeline._cv.notify_all()
 
     def _remote_map_ready(self, frames_tracked: int) -> bool:
-        """Lockstep across processes: the mapper's map must include the last tracked frame."""
+        """Lockstep across processes: the mapper's map must include the last tracked frame.
+
+        Polled (every 0.5 s at most) while a frame waits. The last pose is then published again once
+        a second: a mapper whose subscription was matched only after the first publication (DDS
+        discovery under load) would otherwise never map that frame, and both nodes would wait forever.
+        """
         trajectory = self.pipeline.slam.trajectory
-        return frames_tracked == 0 or self._remote_map_stamp >= trajectory[-1][1]
+        ready = frames_tracked == 0 or self._remote_map_stamp >= trajectory[-1][1]
+        now = time.monotonic()
+        if not ready and now - self._last_pose_sent >= _REPUBLISH_S:
+            with self._path_lock:
+                last = self.path[-1] if self.path else None
+            if last is not None:
+                self.pose_pub.publish(last)
+                self._last_pose_sent = now
+        return ready
 
     # ------------------------------------------------------------------ outputs
     def _on_pose(self, frame: Frame, outcome: TrackOutcome) -> None:
+        if not self.context.ok():  # shutting down: the publishers are gone
+            return
         msg = pose_msg(outcome.c2w, outcome.stamp_ns, self.map_frame)
         self.pose_pub.publish(msg)
+        self._last_pose_sent = time.monotonic()
         self.outputs.tick()
         with self._path_lock:
             self.path.append(msg)

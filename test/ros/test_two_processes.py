@@ -55,4 +55,5 @@ def test_poses_arrive_across_processes(tiny_scene):
             except subprocess.TimeoutExpired:
                 proc.kill()
                 outputs.append(proc.communicate()[0])
+        print("\n---- node logs ----\n" + "\n".join(outputs))  # pytest shows it when the test fails
     assert tracker.returncode == 0 and mapper.returncode == 0, "\n".join(outputs)
