@@ -97,7 +97,7 @@ def labels_from_image(msg: Any) -> np.ndarray:  # [H, W] int32 class ids
     if enc not in LABEL_ENCODINGS:
         raise AdapterError(f"encoding: labels must be one of {', '.join(LABEL_ENCODINGS)}, got {enc!r}")
     arr = image_to_numpy(msg).astype(np.int32)
-    if arr.size and arr.min() < 0:
+    if enc == "32SC1" and arr.size and arr.min() < 0:  # the only signed encoding; a pass per frame otherwise
         raise AdapterError("data: label image holds negative class ids")
     return arr
 

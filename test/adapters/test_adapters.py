@@ -109,6 +109,10 @@ def test_wrong_kind_of_image_is_refused():
         depth_from_image(ns(image_fields(ARRAYS["rgb8"], "rgb8", 0, "")))
     with pytest.raises(AdapterError, match="encoding: labels"):
         labels_from_image(ns(image_fields(ARRAYS["32FC1"], "32FC1", 0, "")))
+    signed = np.array([[0, 3], [-1, 40]], np.int32)
+    with pytest.raises(AdapterError, match=r"^data: label image holds negative"):
+        labels_from_image(ns(image_fields(signed, "32SC1", 0, "")))
+    assert labels_from_image(ns(image_fields(np.abs(signed), "32SC1", 0, ""))).tolist() == [[0, 3], [1, 40]]
 
 
 def test_camera_info_round_trip_and_distortion_warning():
