@@ -85,25 +85,9 @@ def unavailable_reason() -> str:
     return _state["error"] or ""
 
 
-def _split(img: Tensor, groups: tuple[int, ...]) -> tuple[Tensor, ...]:  # img [H, W, sum(groups)]
-    """Contiguous channel groups of the composited image.
-
-    Slicing the image outside the autograd function would make every slice's backward fill and add a
-    full-size zero gradient (a fifth of a 160x120 fwd+bwd on CPU).
-    """
-    return tuple(piece.contiguous() for piece in img.split(list(groups), dim=-1))
-
-
-def _joined(grads: tuple[Tensor | None, ...], groups: tuple[int, ...], like: Tensor) -> tuple[Tensor, Tensor]:
-    """``(image gradient [H, W, sum(groups)], silhouette gradient [H, W])``.
-
-    From the outputs' gradients (None = zero; the last is the silhouette's); ``like`` is any
-    ``[H, W]`` tensor of the features' dtype.
-    """
-    h, w = like.shape
-    parts = [g if g is not None else like.new_zeros(h, w, c) for g, c in zip(grads[:-1], groups, strict=True)]
-    sil = grads[-1] if grads[-1] is not None else like.new_zeros(h, w)
-    return torch.cat(parts, dim=-1).contiguous(), sil.contiguous()
+def _grads(grad_out: tuple[Tensor | None, ...]) -> tuple[list[Tensor | None], Tensor | None]:
+    """The outputs' gradients as the kernels take them: (one per channel group, silhouette's); None = 0."""
+    return list(grad_out[:-1]), grad_out[-1]
 
 
 class _CppComposite(torch.autograd.Function):
@@ -124,21 +108,20 @@ class _CppComposite(torch.autograd.Function):
         ext = extension()
         m, c, o, f = (t.detach().contiguous() for t in (means2d, conics, opacities, features))
         r = radii.detach().to(m.dtype).contiguous()
-        tile = settings.cpu_tile(width, height)
+        tile = settings.cpu_tile(ext.max_tile(m.dtype == torch.float64))
         gids, offsets = ext.bin_gaussians(m, r, depths.detach(), width, height, tile)
         args = (width, height, tile, settings.alpha_min, settings.alpha_max, settings.extent_sigma**2,
                 settings.min_transmittance, torch.get_num_threads())  # fmt: skip
-        img, sil, t_final, count = ext.composite_forward(m, c, o, r, f, gids, offsets, *args)
+        *images, sil, t_final, count = ext.composite_forward(m, c, o, r, f, gids, offsets, list(groups), *args)
         ctx.save_for_backward(m, c, o, r, f, gids, offsets, t_final, count)
-        ctx.args, ctx.groups = args, groups
-        return (*_split(img, groups), sil)
+        ctx.args, ctx.groups = args, list(groups)
+        return (*images, sil)
 
     @staticmethod
     def backward(ctx: Any, *grad_out: Tensor | None) -> tuple[Tensor | None, ...]:  # type: ignore[override]
         m, c, o, r, f, gids, offsets, t_final, count = ctx.saved_tensors
-        grad_img, grad_sil = _joined(grad_out, ctx.groups, t_final)
         grads = extension().composite_backward(
-            m, c, o, r, f, gids, offsets, t_final, count, grad_img, grad_sil, *ctx.args
+            m, c, o, r, f, gids, offsets, t_final, count, ctx.groups, *_grads(grad_out), *ctx.args
         )
         return grads[:, 0:2], grads[:, 2:5], grads[:, 5], grads[:, 6:], None, None, None, None, None, None
 
@@ -184,22 +167,22 @@ class _CppIsotropicRender(torch.autograd.Function):
         m2d, con, rad, dep = ext.project_isotropic(mc, sc, op, *cam, s.near_plane, s.eps2d, s.alpha_min,
                                                    s.extent_sigma, threads)  # fmt: skip
         feats = torch.cat([features.detach(), dep[:, None]], dim=1).contiguous()
-        tile = s.cpu_tile(k.width, k.height)
+        tile = s.cpu_tile(ext.max_tile(mc.dtype == torch.float64))
         gids, offsets = ext.bin_gaussians(m2d, rad, dep, k.width, k.height, tile)
         args = (k.width, k.height, tile, s.alpha_min, s.alpha_max, s.extent_sigma**2, s.min_transmittance,
                 threads)  # fmt: skip
-        img, sil, t_final, count = ext.composite_forward(m2d, con, op, rad, feats, gids, offsets, *args)
+        ctx.groups = [*groups, 1]
+        *images, sil, t_final, count = ext.composite_forward(m2d, con, op, rad, feats, gids, offsets, ctx.groups, *args)
         ctx.save_for_backward(mc, sc, m2d, con, op, rad, feats, gids, offsets, t_final, count)
-        ctx.args, ctx.cam, ctx.s, ctx.groups = args, cam, s, (*groups, 1)
-        return (*_split(img, ctx.groups), sil)
+        ctx.args, ctx.cam, ctx.s = args, cam, s
+        return (*images, sil)
 
     @staticmethod
     def backward(ctx: Any, *grad_out: Tensor | None) -> tuple[Tensor | None, ...]:  # type: ignore[override]
         mc, sc, m2d, con, op, rad, feats, gids, offsets, t_final, count = ctx.saved_tensors
         ext, s = extension(), ctx.s
-        grad_img, grad_sil = _joined(grad_out, ctx.groups, t_final)
-        g = ext.composite_backward(m2d, con, op, rad, feats, gids, offsets, t_final, count, grad_img, grad_sil,
-                                   *ctx.args)  # fmt: skip
+        g = ext.composite_backward(m2d, con, op, rad, feats, gids, offsets, t_final, count, ctx.groups,
+                                   *_grads(grad_out), *ctx.args)  # fmt: skip
         d = feats.shape[1] - 1
         g_mc, g_sc = ext.project_isotropic_backward(mc, sc, g[:, 0:2], g[:, 2:5], g[:, 6 + d], *ctx.cam, s.near_plane,
                                                     s.eps2d, torch.get_num_threads())  # fmt: skip

@@ -37,6 +37,7 @@ def forward_backward(gm, k, backend, channels=("color", "depth", "silhouette", "
         (300, 40, 30, {}, {}),
         (2000, 97, 61, {"behind": 200}, {}),  # partial tiles, Gaussians behind the camera
         (1500, 128, 96, {}, {"cpu_tile_size": 16}),
+        (1500, 100, 70, {}, {"cpu_tile_size": 8}),
         (800, 64, 48, {}, {"cpu_tile_size": 4, "min_transmittance": 0.0}),
         (600, 64, 48, {"anisotropic": True}, {}),  # torch projection, compiled compositing
     ],
@@ -119,3 +120,35 @@ def test_auto_picks_the_compiled_backend_and_falls_back_with_a_reason(monkeypatc
     assert resolve_backend("auto", torch.device("cpu")) == "torch"
     with pytest.raises(BackendUnavailableError, match="SGS_SLAM_NO_CPP"):
         resolve_backend("cpu", torch.device("cpu"))
+
+
+def test_every_tile_size_renders_the_same_image():
+    """Packs skipped by the footprint masks hold no alpha: any tile size gives the same image.
+
+    Equal to float rounding: pixel offsets are taken from tile-relative centres.
+    """
+    gm, k = random_scene(2500, 131, 77, seed=12)
+    runs = {tile: forward_backward(gm, k, "cpu", cpu_tile_size=tile) for tile in (4, 8, 16, 32)}
+    (ref, g_ref), *others = runs.values()
+    for out, grads in others:
+        for name in ("color", "depth", "silhouette", "semantic"):
+            assert (getattr(out, name) - getattr(ref, name)).abs().max().item() < 1e-5, name
+        for name, grad in g_ref.items():
+            assert (grads[name] - grad).abs().max().item() <= 1e-5 * grad.abs().max().item(), name
+
+
+def test_gradients_of_a_loss_over_part_of_the_image():
+    """Packs without upstream gradient are skipped by the backward: the result must not change."""
+    gm, k = random_scene(1200, 100, 70, seed=21, dtype=torch.float64)
+    mask = torch.zeros(70, 100, dtype=torch.float64)
+    mask[10:40, 5:37] = 1.0  # not aligned to tiles or packs
+    grads = {}
+    for backend in ("torch", "cpu"):
+        params = {n: getattr(gm, n).clone().requires_grad_(True) for n in FIELDS}
+        out = render(gm.with_tensors(**params), k, torch.eye(4, dtype=torch.float64), RenderSettings(backend=backend))
+        masked = (out.color * mask[..., None]).sum() + (out.semantic * mask[..., None]).square().sum()
+        (masked + (out.depth * mask).square().sum()).backward()
+        grads[backend] = {n: p.grad for n, p in params.items()}
+    for name, grad in grads["torch"].items():
+        assert grad.abs().max() > 0, name
+        assert (grads["cpu"][name] - grad).abs().max().item() <= 1e-10 * grad.abs().max().item(), name

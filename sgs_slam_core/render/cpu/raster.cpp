@@ -8,16 +8,22 @@
 //   w_i = alpha_i T_i, image = sum_i w_i f_i, silhouette = 1 - T_final
 //
 // Parallelism: OpenMP over tiles; each tile is processed by one thread, sequentially over its
-// depth-sorted Gaussians, with the tile's pixels in explicit SIMD vectors (GCC vector extensions,
-// lowered to AVX-512, AVX2 or SSE by -march=native). The forward runs pack by pack with the sums in
-// registers; the backward runs Gaussian by Gaussian over the packs. Backward writes one gradient row per
-// (tile, Gaussian) intersection, then sums each Gaussian's rows in intersection order; nothing is
-// accumulated across threads, so results do not depend on the thread count or scheduling.
+// depth-sorted Gaussians, with the tile's pixels in packs of W lanes (compact pixel blocks) in
+// explicit SIMD vectors (GCC vector extensions, lowered to AVX-512, AVX2 or SSE by -march=native).
+// Each Gaussian visits only the packs its footprint box meets (a 64-bit mask per Gaussian and tile).
+// The forward runs pack by pack with the sums in registers; the backward runs Gaussian by Gaussian
+// over its packs. Backward writes one gradient row per (tile, Gaussian) intersection, then sums each
+// Gaussian's rows in intersection order; nothing is accumulated across threads, so results do not
+// depend on the thread count or scheduling.
 
 #include <torch/extension.h>
 #include <omp.h>
+#if defined(__AVX512F__)
+#include <immintrin.h>
+#endif
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -57,6 +63,8 @@ struct Pack<double> {
 
 template <typename T>
 using V = typename Pack<T>::V;
+template <typename T>
+using Mask = typename Pack<T>::I;  // lane masks: all bits set = true
 
 template <typename T>
 inline V<T> load(const T* p) {
@@ -95,23 +103,97 @@ inline double hsum(V<double> v) {
   return v[0];
 }
 
+// Horizontal sums of n <= W vectors at once: with AVX-512, a shuffle tree that halves the lanes of
+// pairs of vectors at each level (15 shuffle pairs for 16 vectors instead of 4 per vector); the
+// order of additions is fixed, so results are deterministic. Other widths sum vector by vector.
+#if defined(__AVX512F__)
+inline V<float> fold8(V<float> a, V<float> b) {
+  return __builtin_shufflevector(a, b, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23) +
+         __builtin_shufflevector(a, b, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31);
+}
+inline V<float> fold4(V<float> a, V<float> b) {
+  return __builtin_shufflevector(a, b, 0, 1, 2, 3, 16, 17, 18, 19, 8, 9, 10, 11, 24, 25, 26, 27) +
+         __builtin_shufflevector(a, b, 4, 5, 6, 7, 20, 21, 22, 23, 12, 13, 14, 15, 28, 29, 30, 31);
+}
+inline V<float> fold2(V<float> a, V<float> b) {
+  return __builtin_shufflevector(a, b, 0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29) +
+         __builtin_shufflevector(a, b, 2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30, 31);
+}
+inline V<float> fold1(V<float> a, V<float> b) {
+  return __builtin_shufflevector(a, b, 0, 16, 2, 18, 4, 20, 6, 22, 8, 24, 10, 26, 12, 28, 14, 30) +
+         __builtin_shufflevector(a, b, 1, 17, 3, 19, 5, 21, 7, 23, 9, 25, 11, 27, 13, 29, 15, 31);
+}
+inline V<float> fold_tree(const V<float>* v) {  // v[16] -> lane l holds the sum of v[kTreeLane[l]]
+  V<float> a[8], b[4], c[2];
+  for (int i = 0; i < 8; ++i) a[i] = fold8(v[2 * i], v[2 * i + 1]);
+  for (int i = 0; i < 4; ++i) b[i] = fold4(a[2 * i], a[2 * i + 1]);
+  for (int i = 0; i < 2; ++i) c[i] = fold2(b[2 * i], b[2 * i + 1]);
+  return fold1(c[0], c[1]);
+}
+inline const std::array<int, 16>& tree_lanes() {
+  static const std::array<int, 16> lanes = [] {
+    V<float> v[16];
+    for (int i = 0; i < 16; ++i) v[i] = V<float>{} + float(i);
+    const V<float> r = fold_tree(v);
+    std::array<int, 16> out{};
+    for (int l = 0; l < 16; ++l) out[l] = static_cast<int>(r[l] / 16.0f);
+    return out;
+  }();
+  return lanes;
+}
+inline void hsum_many(const V<float>* v, int n, float* out) {
+  const std::array<int, 16>& lanes = tree_lanes();
+  for (int first = 0; first < n; first += 16, v += 16, out += 16) {
+    const int m = std::min(n - first, 16);
+    V<float> padded[16];
+    for (int i = 0; i < 16; ++i) padded[i] = i < m ? v[i] : V<float>{};
+    const V<float> r = fold_tree(padded);
+    for (int l = 0; l < 16; ++l)
+      if (lanes[l] < m) out[lanes[l]] = r[l];
+  }
+}
+#else
+inline void hsum_many(const V<float>* v, int n, float* out) {
+  for (int i = 0; i < n; ++i) out[i] = hsum(v[i]);
+}
+#endif
+inline void hsum_many(const V<double>* v, int n, double* out) {
+  for (int i = 0; i < n; ++i) out[i] = hsum(v[i]);
+}
+
+
 // exp(x) for x <= 0 (Cephes expf polynomial, relative error ~2e-7); arguments below -87 give a
-// tiny normal number. Rounding to nearest uses the 1.5 * 2^23 trick, so no floor() is needed.
-inline V<float> exp_neg(V<float> x) {
-  using F = V<float>;
-  x = x < -87.0f ? splat(-87.0f) : x;
-  const F n = (x * 1.44269504088896341f + 12582912.0f) - 12582912.0f;
-  const F r = x - n * 0.693145751953125f - n * 1.428606765330187045e-06f;
-  F p = splat(1.9875691500e-4f);
+// tiny normal number. With AVX-512 the power of two is applied by vscalefps and n is rounded by
+// vrndscaleps; otherwise by the 1.5 * 2^23 rounding trick and an exponent-bits multiply.
+inline V<float> exp_poly(V<float> r) {  // exp(r) for |r| <= ln(2) / 2
+  V<float> p = splat(1.9875691500e-4f);
   p = p * r + 1.3981999507e-3f;
   p = p * r + 8.3334519073e-3f;
   p = p * r + 4.1665795894e-2f;
   p = p * r + 1.6666665459e-1f;
   p = p * r + 5.0000001201e-1f;
-  p = p * r * r + r + 1.0f;
-  const Pack<float>::I bits = (__builtin_convertvector(n, Pack<float>::I) + 127) << 23;
-  return p * (F)bits;  // GCC: a cast between equally sized vectors reinterprets the bits
+  return p * r * r + r + 1.0f;
 }
+#if defined(__AVX512F__)
+inline V<float> exp_neg(V<float> x) {
+  x = (V<float>)_mm512_max_ps((__m512)x, _mm512_set1_ps(-87.0f));
+  const V<float> n = (V<float>)_mm512_roundscale_ps((__m512)(x * 1.44269504088896341f), _MM_FROUND_TO_NEAREST_INT);
+  const V<float> r = x - n * 0.693145751953125f - n * 1.428606765330187045e-06f;
+  return (V<float>)_mm512_scalef_ps((__m512)exp_poly(r), (__m512)n);
+}
+inline V<float> vmin(V<float> a, V<float> b) { return (V<float>)_mm512_min_ps((__m512)a, (__m512)b); }
+#else
+inline V<float> exp_neg(V<float> x) {
+  using F = V<float>;
+  x = x < -87.0f ? splat(-87.0f) : x;
+  const F n = (x * 1.44269504088896341f + 12582912.0f) - 12582912.0f;
+  const F r = x - n * 0.693145751953125f - n * 1.428606765330187045e-06f;
+  const Pack<float>::I bits = (__builtin_convertvector(n, Pack<float>::I) + 127) << 23;
+  return exp_poly(r) * (F)bits;  // GCC: a cast between equally sized vectors reinterprets the bits
+}
+inline V<float> vmin(V<float> a, V<float> b) { return a < b ? a : b; }
+#endif
+inline V<double> vmin(V<double> a, V<double> b) { return a < b ? a : b; }
 inline V<double> exp_neg(V<double> x) {
   V<double> out;
   for (int l = 0; l < Pack<double>::W; ++l) out[l] = std::exp(x[l]);
@@ -129,58 +211,117 @@ struct TileView {
   int64_t begin, end;
 };
 
+// Per-channel views of images stored as channel groups ([H, W, g] tensors side by side): channel c of
+// pixel i is at ptr[c][i * stride[c]]; a null pointer reads as zero (a group without gradient).
+template <typename P>
+struct Planes {
+  std::vector<P*> ptr;
+  std::vector<int64_t> stride;
+};
+
+// The forward's per-pixel outputs.
+template <typename T>
+struct FrameOut {
+  Planes<T> feat;
+  T *sil, *t_final;
+  int32_t* count;
+};
+
 inline TileView tile_view(const Settings& s, int tile, const int64_t* offsets) {
   return {(tile % s.tiles_x) * s.tile, (tile / s.tiles_x) * s.tile, offsets[tile], offsets[tile + 1]};
 }
 
-// Per-Gaussian constants of one slot.
+// Per-Gaussian constants of one slot: centre (u, v) in tile pixels, the exponent
+// -q/2 = a dx^2 + b dx dy + c dy^2 (a = -A/2, b = -B, c = -C/2 for the conic (A, B, C)), opacity o.
 template <typename T>
 struct Splat {
-  T u, v, A, B2, C, o;
+  T u, v, a, b, c, o;
 };
 
 template <typename T>
 inline Splat<T> splat_of(int64_t g, const TileView& view, const T* m2d, const T* con, const T* op) {
-  return {m2d[2 * g] - view.x0, m2d[2 * g + 1] - view.y0, con[3 * g], T(2) * con[3 * g + 1], con[3 * g + 2], op[g]};
+  return {m2d[2 * g] - view.x0, m2d[2 * g + 1] - view.y0, T(-0.5) * con[3 * g], -con[3 * g + 1], T(-0.5) * con[3 * g + 2], op[g]};
 }
 
-// Which pixels of the tile each pack (W consecutive pixels, row-major) covers.
-struct PackBox {
-  float row_lo, row_hi, col_lo, col_hi;
+// How a tile's pixels are grouped into packs: a pack is a block of bw x bh = W pixels (4 x 4 for 16
+// lanes, 4 x 2 for 8, 2 x 2 for 4), blocks in row-major order, lanes row-major within a block.
+// Compact blocks waste fewer lanes on footprints that cover part of a tile than pixel rows do.
+struct PackLayout {
+  int ts, npack, bw, bh, per_row;  // per_row: blocks per row of blocks
+
+  // Tile pixel (y * ts + x) of lane l of pack p.
+  int pixel(int p, int l) const {
+    const int x = (p % per_row) * bw + l % bw, y = (p / per_row) * bh + l / bw;
+    return y * ts + x;
+  }
 };
 
 template <typename T>
-std::vector<PackBox> pack_boxes(int ts) {
+PackLayout pack_layout(int ts) {
   constexpr int W = Pack<T>::W;
-  std::vector<PackBox> boxes;
-  for (int b = 0; b < ts * ts; b += W) {
-    const int r0 = b / ts, r1 = (b + W - 1) / ts;
-    const bool one_row = r0 == r1;
-    boxes.push_back({float(r0), float(r1), one_row ? float(b % ts) : 0.f, one_row ? float((b + W - 1) % ts) : float(ts - 1)});
-  }
-  return boxes;
+  constexpr int bw = W >= 16 ? 4 : (W == 8 ? 4 : 2), bh = W / bw;
+  return {ts, ts * ts / W, bw, bh, ts / bw};
 }
 
-// True when a pack can hold a pixel of the footprint box [u - r, u + r] x [v - r, v + r]; outside
-// the box alpha is exactly 0 (the radius bounds both the 3-sigma and the alpha_min cut).
-inline bool pack_hit(const PackBox& p, float u, float v, float r) {
-  return p.row_hi >= v - r && p.row_lo <= v + r && p.col_hi >= u - r && p.col_lo <= u + r;
+// Bits lo..hi (0 <= lo <= hi <= 63).
+inline uint64_t bit_range(int lo, int hi) {
+  const uint64_t upto = hi >= 63 ? ~uint64_t(0) : (uint64_t(1) << (hi + 1)) - 1;
+  return upto & ~((uint64_t(1) << lo) - 1);
 }
 
-// Alpha of one Gaussian on W pixels after the footprint and alpha cuts (not the early stop), and q.
+// Bit p set when pack p holds a pixel centre of the footprint box [u - r, u + r] x [v - r, v + r]
+// (tile coordinates). Outside that box alpha is exactly 0 (the radius bounds both the 3-sigma and
+// the alpha_min cut), so the kernels visit only these packs: no data-dependent branch per pack.
+inline uint64_t pack_mask(const PackLayout& L, float u, float v, float r) {
+  const float last = static_cast<float>(L.ts - 1);
+  const float rl = std::max(std::ceil(v - r), 0.f), rh = std::min(std::floor(v + r), last);
+  const float cl = std::max(std::ceil(u - r), 0.f), ch = std::min(std::floor(u + r), last);
+  if (!(rl <= rh && cl <= ch)) return 0;
+  const int b0 = static_cast<int>(rl) / L.bh, b1 = static_cast<int>(rh) / L.bh;  // rows of blocks
+  const uint64_t cols = bit_range(static_cast<int>(cl) / L.bw, static_cast<int>(ch) / L.bw);
+  const int span = (b1 - b0 + 1) * L.per_row;
+  const uint64_t ones = span >= 64 ? ~uint64_t(0) : (uint64_t(1) << span) - 1;
+  const uint64_t rows = ones / ((uint64_t(1) << L.per_row) - 1);  // bit i * per_row for each block row i
+  return (rows * cols) << (b0 * L.per_row);
+}
+
+// The tile's Gaussians in slot (depth) order: splat constants, feature rows and the packs each can
+// touch, gathered once per tile into thread-owned buffers (reused across tiles).
 template <typename T>
-inline V<T> raw_alpha(const Settings& s, const Splat<T>& g, V<T> px, V<T> py, V<T>& dx, V<T>& dy) {
-  const T e2 = static_cast<T>(s.extent2);
-  dx = px - g.u;
-  dy = py - g.v;
-  const V<T> q = g.A * dx * dx + g.B2 * dx * dy + g.C * dy * dy;
-  V<T> a = g.o * exp_neg(T(-0.5) * (q < e2 + T(1) ? q : splat(e2 + T(1))));
-  a = a < T(s.alpha_max) ? a : splat(T(s.alpha_max));
-  return (q < e2) & (a > T(s.alpha_min)) ? a : splat(T(0));
-}
+struct TileSplats {
+  std::vector<T> u, v, a, b, c, o;
+  std::vector<uint64_t> packs;
+  std::vector<const T*> feat;  // feature row of each slot
+  std::vector<T> zero_row;
 
+  // Slots 0..K-1 of the view, then one inert slot K (opacity 0, zero features) that pads loops.
+  void gather(const PackLayout& L, const TileView& view, const int32_t* gids, const T* m2d, const T* con, const T* op,
+              const T* rad, const T* features, int D) {
+    const size_t K = static_cast<size_t>(view.end - view.begin);
+    for (auto* x : {&u, &v, &a, &b, &c, &o}) x->resize(K + 1);
+    packs.resize(K + 1);
+    feat.resize(K + 1);
+    zero_row.assign(D, T(0));
+    for (size_t k = 0; k < K; ++k) {
+      const int32_t g = gids[view.begin + k];
+      const Splat<T> sp = splat_of(g, view, m2d, con, op);
+      u[k] = sp.u, v[k] = sp.v, a[k] = sp.a, b[k] = sp.b, c[k] = sp.c, o[k] = sp.o;
+      feat[k] = features + static_cast<int64_t>(g) * D;
+      packs[k] = pack_mask(L, float(sp.u), float(sp.v), float(rad[g]));
+    }
+    u[K] = v[K] = a[K] = b[K] = c[K] = o[K] = T(0);
+    feat[K] = zero_row.data();
+    packs[K] = 0;
+  }
+  Splat<T> operator[](size_t k) const { return {u[k], v[k], a[k], b[k], c[k], o[k]}; }
+};
+
+// Per-thread buffers of the tile kernels.
 template <typename T>
 struct Scratch {
+  TileSplats<T> splats;
+  std::vector<int32_t> slots;  // forward: [npack, K] slots meeting each pack, in depth order
+  std::vector<int32_t> nslots;
   std::vector<T> data;
   T* take(size_t n) {
     T* p = data.data() + used;
@@ -194,78 +335,113 @@ struct Scratch {
   size_t used = 0;
 };
 
+// The alpha cuts in the working precision, held in locals so they stay in registers; the
+// footprint cut q < extent^2 is tested as -q/2 > -extent^2/2.
 template <typename T>
-void pixel_grid(int ts, T* px, T* py) {
-  for (int p = 0; p < ts * ts; ++p) {
-    px[p] = static_cast<T>(p % ts);
-    py[p] = static_cast<T>(p / ts);
-  }
+struct AlphaCut {
+  T neg_half_extent2, alpha_min, alpha_max;
+};
+
+template <typename T>
+inline AlphaCut<T> alpha_cut(const Settings& s) {
+  return {static_cast<T>(-0.5 * s.extent2), static_cast<T>(s.alpha_min), static_cast<T>(s.alpha_max)};
 }
 
-// Forward of one tile, pack by pack: each pack of W pixels runs through the tile's depth-sorted
-// Gaussians with its accumulators in registers (the channel count DC is a template argument for the
-// common 4 = colour + depth and 7 = colour + 3 semantics + depth; 0 = any, read at run time). The
-// splat constants are gathered once per tile. Per pixel the blending order is the same as a
-// Gaussian-major loop, so results do not depend on the loop order.
+// Alpha of one Gaussian on W pixels after the footprint and alpha cuts (not the early stop), and the
+// offsets dx, dy. exp_neg clamps its argument, so far pixels (huge q) need no clamp of their own.
+template <typename T>
+inline V<T> raw_alpha(const AlphaCut<T>& cut, const Splat<T>& g, V<T> px, V<T> py, V<T>& dx, V<T>& dy) {
+  dx = px - g.u;
+  dy = py - g.v;
+  const V<T> e = dx * (g.a * dx + g.b * dy) + g.c * dy * dy;  // -q/2
+  const V<T> a = vmin(g.o * exp_neg(e), splat(cut.alpha_max));
+  return (e > cut.neg_half_extent2) & (a > cut.alpha_min) ? a : splat(T(0));
+}
+
+// Tile coordinates of every lane, in pack order: px[p * W + l], py[p * W + l].
+template <typename T>
+void pixel_grid(const PackLayout& L, T* px, T* py) {
+  constexpr int W = Pack<T>::W;
+  for (int p = 0; p < L.npack; ++p)
+    for (int l = 0; l < W; ++l) {
+      const int pix = L.pixel(p, l);
+      px[p * W + l] = static_cast<T>(pix % L.ts);
+      py[p * W + l] = static_cast<T>(pix / L.ts);
+    }
+}
+
+// Forward of one tile, pack by pack: each pack of W pixels runs through the depth-sorted Gaussians
+// that can touch it, with its accumulators in registers (the channel count DC is a template argument
+// for the common 4 = colour + depth and 7 = colour + 3 semantics + depth; 0 = any, read at run
+// time). Per pixel the blending order is the same as a Gaussian-major loop over all slots, so
+// results do not depend on the loop order.
 template <typename T, int DC>
 void forward_tile(const Settings& s, int tile, const int64_t* offsets, const int32_t* gids, const T* m2d, const T* con,
-                  const T* op, const T* rad, const T* feat, T* img, T* sil, T* t_final, int32_t* count, Scratch<T>& sc) {
+                  const T* op, const T* rad, const T* feat, const FrameOut<T>& out, Scratch<T>& sc) {
   constexpr int W = Pack<T>::W;
-  const int ts = s.tile, npix = ts * ts, D = DC > 0 ? DC : s.channels, npack = npix / W;
+  const int ts = s.tile, npix = ts * ts, D = DC > 0 ? DC : s.channels;
+  const PackLayout layout = pack_layout<T>(ts);
   const TileView view = tile_view(s, tile, offsets);
   const int64_t K = view.end - view.begin;
-  sc.reset(static_cast<size_t>(K) * 7 + static_cast<size_t>(npix) * 2);
-  T* su = sc.take(K);
-  T* sv = sc.take(K);
-  T* sa = sc.take(K);
-  T* sb2 = sc.take(K);
-  T* scc = sc.take(K);
-  T* so = sc.take(K);
-  T* sr = sc.take(K);
-  for (int64_t k = 0; k < K; ++k) {
-    const int64_t g = gids[view.begin + k];
-    const Splat<T> sp = splat_of(g, view, m2d, con, op);
-    su[k] = sp.u, sv[k] = sp.v, sa[k] = sp.A, sb2[k] = sp.B2, scc[k] = sp.C, so[k] = sp.o, sr[k] = rad[g];
-  }
+  TileSplats<T>& sp = sc.splats;
+  sp.gather(layout, view, gids, m2d, con, op, rad, feat, D);
+  // Slots meeting each pack, in depth order, padded with the inert slot K to an even count.
+  const int64_t cap = K + 2;
+  sc.slots.resize(static_cast<size_t>(layout.npack) * cap);
+  sc.nslots.assign(layout.npack, 0);
+  for (int64_t k = 0; k < K; ++k)
+    for (uint64_t m = sp.packs[k]; m; m &= m - 1) {
+      const int p = __builtin_ctzll(m);
+      sc.slots[p * cap + sc.nslots[p]++] = static_cast<int32_t>(k);
+    }
+  for (int p = 0; p < layout.npack; ++p) sc.slots[p * cap + sc.nslots[p]] = static_cast<int32_t>(K);
+  sc.reset(static_cast<size_t>(npix) * 2);
   T* px = sc.take(npix);
   T* py = sc.take(npix);
-  pixel_grid(ts, px, py);
+  pixel_grid(layout, px, py);
   const T never = T(1e30);
   const T floor_t = static_cast<T>(std::max(s.t_min, 1e-30));
-  const std::vector<PackBox> boxes = pack_boxes<T>(ts);
+  const AlphaCut<T> cut = alpha_cut<T>(s);
   V<T> acc_fixed[DC > 0 ? DC : 1];
   std::vector<V<T>> acc_any(DC > 0 ? 0 : D);
   V<T>* acc = DC > 0 ? acc_fixed : acc_any.data();
-  for (int pack = 0; pack < npack; ++pack) {
+  for (int pack = 0; pack < layout.npack; ++pack) {
     const int b = pack * W;
-    const PackBox box = boxes[pack];
     const V<T> x = load(px + b), y = load(py + b);
     for (int c = 0; c < D; ++c) acc[c] = V<T>{};
-    V<T> t = splat(T(1)), stopped = splat(never);
-    for (int64_t k = 0; k < K; ++k) {
-      if (!pack_hit(box, float(su[k]), float(sv[k]), float(sr[k]))) continue;
-      const Splat<T> sp{su[k], sv[k], sa[k], sb2[k], scc[k], so[k]};
-      V<T> dx, dy;
-      V<T> a = raw_alpha(s, sp, x, y, dx, dy);
-      const auto was = stopped < never;
-      const auto now = (t * (T(1) - a) < floor_t) | was;
-      a = now ? splat(T(0)) : a;
-      stopped = (now & ~was) ? splat(static_cast<T>(k)) : stopped;
-      const V<T> w = a * t;
-      const T* f = feat + static_cast<int64_t>(gids[view.begin + k]) * D;
+    V<T> t = splat(T(1)), stopped = splat(never);  // stopped: slot of the lane's stop, or never
+    // Blending is sequential through t; the alphas are not, so two slots' alphas are computed
+    // together (two independent exp chains) before both are blended in order.
+    auto blend = [&](int32_t k, V<T> a) {
+      const V<T> t_next = t * (T(1) - a);
+      const auto live = stopped == never;
+      const auto low = t_next < floor_t;
+      stopped = (live & low) ? splat(static_cast<T>(k)) : stopped;
+      const auto keep = live & ~low;
+      const V<T> w = keep ? a * t : splat(T(0));
+      t = keep ? t_next : t;
+      const T* f = sp.feat[k];
       for (int c = 0; c < D; ++c) acc[c] += w * f[c];
-      t = t * (T(1) - a);
-      if ((k & 15) == 15 && hsum(now ? splat(T(0)) : splat(T(1))) == T(0)) break;  // every pixel has stopped
+    };
+    const int32_t* slots = sc.slots.data() + pack * cap;
+    for (int j = 0, n = sc.nslots[pack]; j < n; j += 2) {
+      const int32_t k0 = slots[j], k1 = slots[j + 1];
+      V<T> dx, dy;
+      const V<T> a0 = raw_alpha(cut, sp[k0], x, y, dx, dy);
+      const V<T> a1 = raw_alpha(cut, sp[k1], x, y, dx, dy);
+      blend(k0, a0);
+      blend(k1, a1);
+      if ((j & 15) == 14 && hsum(stopped == never ? splat(T(1)) : splat(T(0))) == T(0)) break;  // every pixel has stopped
     }
     const T total = static_cast<T>(K);
     for (int l = 0; l < W; ++l) {
-      const int p = b + l, px_ = view.x0 + p % ts, py_ = view.y0 + p / ts;
+      const int p = layout.pixel(pack, l), px_ = view.x0 + p % ts, py_ = view.y0 + p / ts;
       if (px_ >= s.width || py_ >= s.height) continue;
       const int64_t pix = static_cast<int64_t>(py_) * s.width + px_;
-      for (int c = 0; c < D; ++c) img[pix * D + c] = acc[c][l];
-      sil[pix] = T(1) - t[l];
-      t_final[pix] = t[l];
-      count[pix] = static_cast<int32_t>(stopped[l] < total ? stopped[l] : total);
+      for (int c = 0; c < D; ++c) out.feat.ptr[c][pix * out.feat.stride[c]] = acc[c][l];
+      out.sil[pix] = T(1) - t[l];
+      out.t_final[pix] = t[l];
+      out.count[pix] = static_cast<int32_t>(stopped[l] < total ? stopped[l] : total);
     }
   }
 }
@@ -273,12 +449,14 @@ void forward_tile(const Settings& s, int tile, const int64_t* offsets, const int
 // One back-to-front pass (3DGS-style): the forward saved each pixel's final transmittance and how
 // many slots it blended; T_i is recovered as T_{i+1} / (1 - alpha_i) and the suffix sum
 // S_i = sum_{j>i} w_j c_j grows as we go, so dL/dalpha_i = T_i c_i - S_i / (1 - alpha_i).
+// Each Gaussian visits only the packs its footprint meets and in which some pixel blended it.
 template <typename T, int DC>
 void backward_tile(const Settings& s, int tile, const int64_t* offsets, const int32_t* gids, const T* m2d, const T* con,
-                   const T* op, const T* rad, const T* feat, const T* g_img, const T* g_sil, const T* t_final,
-                   const int32_t* count, T* out, Scratch<T>& sc) {
+                   const T* op, const T* rad, const T* feat, const Planes<const T>& g_img, const T* g_sil,
+                   const T* t_final, const int32_t* count, T* out, Scratch<T>& sc) {
   constexpr int W = Pack<T>::W;
   const int ts = s.tile, npix = ts * ts, D = DC > 0 ? DC : s.channels, stride = kGeomGrads + D;
+  const PackLayout layout = pack_layout<T>(ts);
   const TileView view = tile_view(s, tile, offsets);
   sc.reset(static_cast<size_t>(npix) * (D + 7));
   T* gp = sc.take(static_cast<size_t>(D) * npix);  // [D, npix] upstream gradient of the features
@@ -288,42 +466,62 @@ void backward_tile(const Settings& s, int tile, const int64_t* offsets, const in
   T* suffix = sc.take(npix);
   T* px = sc.take(npix);
   T* py = sc.take(npix);
-  pixel_grid(ts, px, py);
+  pixel_grid(layout, px, py);
+  // Per pack, the slots its longest-blending pixel blended; 0 for packs without upstream gradient
+  // (they pass none on, which tracking's masked losses make common).
+  std::vector<std::pair<int32_t, int>> by_count(layout.npack, {0, 0});
   int32_t max_count = 0;
-  for (int p = 0; p < npix; ++p) {
-    const int x = view.x0 + p % ts, y = view.y0 + p / ts;
-    const bool inside = x < s.width && y < s.height;
-    const int64_t pix = static_cast<int64_t>(y) * s.width + x;
-    for (int c = 0; c < D; ++c) gp[c * npix + p] = inside ? g_img[pix * D + c] : T(0);
-    gs[p] = inside ? g_sil[pix] : T(0);
-    trans[p] = inside ? t_final[pix] : T(1);
-    const int32_t n = inside ? count[pix] : 0;
-    nblend[p] = static_cast<T>(n);
-    max_count = std::max(max_count, n);
+  for (int pack = 0; pack < layout.npack; ++pack) {
+    int32_t most = 0;
+    bool any_grad = false;
+    for (int p = pack * W; p < (pack + 1) * W; ++p) {  // p: lane index in pack order
+      const int tp = layout.pixel(pack, p % W), x = view.x0 + tp % ts, y = view.y0 + tp / ts;
+      const bool inside = x < s.width && y < s.height;
+      const int64_t pix = static_cast<int64_t>(y) * s.width + x;
+      for (int c = 0; c < D; ++c) {
+        gp[c * npix + p] = inside && g_img.ptr[c] ? g_img.ptr[c][pix * g_img.stride[c]] : T(0);
+        any_grad |= gp[c * npix + p] != T(0);
+      }
+      gs[p] = inside && g_sil ? g_sil[pix] : T(0);
+      any_grad |= gs[p] != T(0);
+      trans[p] = inside ? t_final[pix] : T(1);
+      const int32_t n = inside ? count[pix] : 0;
+      nblend[p] = static_cast<T>(n);
+      most = std::max(most, n);
+    }
+    by_count[pack] = {any_grad ? most : 0, pack};
+    max_count = std::max(max_count, by_count[pack].first);
   }
-  const T amax = static_cast<T>(s.alpha_max);
-  const std::vector<PackBox> boxes = pack_boxes<T>(ts);
-  std::vector<int32_t> pack_count(npix / W, 0);  // slots blended by the pack's longest-blending pixel
-  for (int p = 0; p < npix; ++p) pack_count[p / W] = std::max(pack_count[p / W], static_cast<int32_t>(nblend[p]));
-  V<T> gf_fixed[DC > 0 ? DC : 1];  // per-Gaussian feature gradients; in registers when DC is known
-  std::vector<V<T>> gf_any(DC > 0 ? 0 : D);
-  V<T>* gf = DC > 0 ? gf_fixed : gf_any.data();
   // Slots past every pixel's stop contribute nothing; their rows are zeroed here (rows are not pre-filled).
   std::fill(out + (view.begin + max_count) * stride, out + view.end * stride, T(0));
+  const TileView blended{view.x0, view.y0, view.begin, view.begin + max_count};
+  TileSplats<T>& sp = sc.splats;
+  sp.gather(layout, blended, gids, m2d, con, op, rad, feat, D);
+  // Packs in decreasing order of that count: slot k is live in the packs of the first entries.
+  std::sort(by_count.begin(), by_count.end(), [](auto a, auto b) { return a.first > b.first; });
+  uint64_t live_packs = 0;
+  size_t next = 0;
+  const AlphaCut<T> cut = alpha_cut<T>(s);
+  // Per-Gaussian sums over the packs, in registers when DC is known: 6 geometric partials
+  // (dL/dq x dx, x dy, x dx^2, x dx dy, x dy^2; o dL/do), then the D feature gradients.
+  constexpr int kSums = DC > 0 ? kGeomGrads + DC : 1;
+  V<T> sums_fixed[kSums];
+  std::vector<V<T>> sums_any(DC > 0 ? 0 : kGeomGrads + D);
+  V<T>* sums = DC > 0 ? sums_fixed : sums_any.data();
+  V<T>* gf = sums + kGeomGrads;
+  T tot_fixed[kSums];
+  std::vector<T> tot_any(DC > 0 ? 0 : kGeomGrads + D);
+  T* tot = DC > 0 ? tot_fixed : tot_any.data();
   for (int64_t k = max_count - 1; k >= 0; --k) {
-    const int64_t i = view.begin + k;
-    const int64_t g = gids[i];
-    const Splat<T> sp = splat_of(g, view, m2d, con, op);
-    const T* f = feat + g * D;
+    while (next < by_count.size() && by_count[next].first > k) live_packs |= uint64_t(1) << by_count[next++].second;
+    const Splat<T> g = sp[k];
+    const T* f = sp.feat[k];
     const T slot = static_cast<T>(k);
-    V<T> vsx{}, vsy{}, vsxx{}, vsxy{}, vsyy{}, vsa{};
-    for (int c = 0; c < D; ++c) gf[c] = V<T>{};
-    for (int pack = 0; pack < npix / W; ++pack) {
-      // Past every pixel's stop, or outside the footprint: alpha is 0 and nothing changes.
-      if (k >= pack_count[pack] || !pack_hit(boxes[pack], float(sp.u), float(sp.v), float(rad[g]))) continue;
-      const int b = pack * W;
+    for (int c = 0; c < kGeomGrads + D; ++c) sums[c] = V<T>{};
+    for (uint64_t m = sp.packs[k] & live_packs; m; m &= m - 1) {
+      const int b = __builtin_ctzll(m) * W;
       V<T> dx, dy;
-      V<T> a = raw_alpha(s, sp, load(px + b), load(py + b), dx, dy);
+      V<T> a = raw_alpha(cut, g, load(px + b), load(py + b), dx, dy);
       a = slot < load(nblend + b) ? a : splat(T(0));
       const V<T> inv = T(1) / (T(1) - a);
       const V<T> t = load(trans + b) * inv;  // transmittance before this slot
@@ -338,24 +536,25 @@ void backward_tile(const Settings& s, int tile, const int64_t* offsets, const in
       const V<T> g_alpha = t * ck - suf * inv;
       store(suffix + b, suf + w * ck);
       store(trans + b, t);
-      const V<T> free = (a > T(0)) & (a < amax) ? a : splat(T(0));  // clamped or cut alphas pass no gradient
-      const V<T> gq = T(-0.5) * g_alpha * free;                     // dL/dq
-      vsx += gq * dx;
-      vsy += gq * dy;
-      vsxx += gq * dx * dx;
-      vsxy += gq * dx * dy;
-      vsyy += gq * dy * dy;
-      vsa += g_alpha * free;  // o dL/do
+      const V<T> free = (a > T(0)) & (a < cut.alpha_max) ? a : splat(T(0));  // clamped or cut alphas pass no gradient
+      const V<T> gq = T(-0.5) * g_alpha * free;                              // dL/dq
+      sums[0] += gq * dx;
+      sums[1] += gq * dy;
+      sums[2] += gq * dx * dx;
+      sums[3] += gq * dx * dy;
+      sums[4] += gq * dy * dy;
+      sums[5] += g_alpha * free;  // o dL/do
     }
-    const T sx = hsum(vsx), sy = hsum(vsy), B = T(0.5) * sp.B2;
-    T* row = out + i * stride;
-    row[0] = T(-2) * (sp.A * sx + B * sy);
-    row[1] = T(-2) * (B * sx + sp.C * sy);
-    row[2] = hsum(vsxx);
-    row[3] = T(2) * hsum(vsxy);
-    row[4] = hsum(vsyy);
-    row[5] = sp.o > T(0) ? hsum(vsa) / sp.o : T(0);
-    for (int c = 0; c < D; ++c) row[kGeomGrads + c] = hsum(gf[c]);
+    hsum_many(sums, kGeomGrads + D, tot);
+    const T sx = tot[0], sy = tot[1], A = T(-2) * g.a, B = -g.b, C = T(-2) * g.c;
+    T* row = out + (view.begin + k) * stride;
+    row[0] = T(-2) * (A * sx + B * sy);
+    row[1] = T(-2) * (B * sx + C * sy);
+    row[2] = tot[2];
+    row[3] = T(2) * tot[3];
+    row[4] = tot[4];
+    row[5] = g.o > T(0) ? tot[5] / g.o : T(0);
+    for (int c = 0; c < D; ++c) row[kGeomGrads + c] = tot[kGeomGrads + c];
   }
 }
 
@@ -371,18 +570,35 @@ void with_channels(int channels, F&& fn) {
     fn(std::integral_constant<int, 0>{});
 }
 
+// Pixels of a tile no Gaussian touches: features 0, silhouette 0, transmittance 1, no slots.
+template <typename T>
+void clear_tile(const Settings& s, int tile, const FrameOut<T>& out) {
+  const int x0 = (tile % s.tiles_x) * s.tile, y0 = (tile / s.tiles_x) * s.tile;
+  for (int y = y0; y < std::min(y0 + s.tile, s.height); ++y)
+    for (int x = x0; x < std::min(x0 + s.tile, s.width); ++x) {
+      const int64_t pix = static_cast<int64_t>(y) * s.width + x;
+      for (int c = 0; c < s.channels; ++c) out.feat.ptr[c][pix * out.feat.stride[c]] = T(0);
+      out.sil[pix] = T(0);
+      out.t_final[pix] = T(1);
+      out.count[pix] = 0;
+    }
+}
+
 template <typename T>
 void forward_all(const Settings& s, const int64_t* off, const int32_t* gid, const T* m, const T* c, const T* o,
-                 const T* r, const T* f, T* img, T* sil, T* t_final, int32_t* count, int threads) {
+                 const T* r, const T* f, const FrameOut<T>& out, int threads) {
   const int num_tiles = s.tiles_x * s.tiles_y;
 #pragma omp parallel num_threads(threads)
   {
     Scratch<T> scratch;
-#pragma omp for schedule(dynamic, 4)
+#pragma omp for schedule(dynamic, 1)
     for (int t = 0; t < num_tiles; ++t) {
-      if (off[t + 1] == off[t]) continue;
+      if (off[t + 1] == off[t]) {
+        clear_tile(s, t, out);
+        continue;
+      }
       with_channels(s.channels, [&](auto dc) {
-        forward_tile<T, decltype(dc)::value>(s, t, off, gid, m, c, o, r, f, img, sil, t_final, count, scratch);
+        forward_tile<T, decltype(dc)::value>(s, t, off, gid, m, c, o, r, f, out, scratch);
       });
     }
   }
@@ -390,13 +606,13 @@ void forward_all(const Settings& s, const int64_t* off, const int32_t* gid, cons
 
 template <typename T>
 void backward_all(const Settings& s, const int64_t* off, const int32_t* gid, const T* m, const T* c, const T* o,
-                  const T* r, const T* f, const T* gi, const T* gs, const T* t_final, const int32_t* count, T* out,
-                  int threads) {
+                  const T* r, const T* f, const Planes<const T>& gi, const T* gs, const T* t_final,
+                  const int32_t* count, T* out, int threads) {
   const int num_tiles = s.tiles_x * s.tiles_y;
 #pragma omp parallel num_threads(threads)
   {
     Scratch<T> scratch;
-#pragma omp for schedule(dynamic, 4)
+#pragma omp for schedule(dynamic, 1)
     for (int t = 0; t < num_tiles; ++t) {
       if (off[t + 1] == off[t]) continue;
       with_channels(s.channels, [&](auto dc) {
@@ -428,7 +644,8 @@ void reduce_rows(const T* rows, const int32_t* gids, int64_t num_isects, int64_t
 
 Settings make_settings(int64_t width, int64_t height, int64_t tile, int64_t channels, double alpha_min,
                        double alpha_max, double extent2, double t_min) {
-  TORCH_CHECK(tile == 4 || tile == 8 || tile == 16, "the cpu backend supports tile sizes 4, 8 and 16, got ", tile);
+  TORCH_CHECK(tile == 4 || tile == 8 || tile == 16 || tile == 32, "the cpu backend supports tile sizes 4, 8, 16 and 32, got ",
+              tile);
   Settings s{};
   s.width = static_cast<int>(width);
   s.height = static_cast<int>(height);
@@ -442,6 +659,16 @@ Settings make_settings(int64_t width, int64_t height, int64_t tile, int64_t chan
   s.t_min = t_min;
   return s;
 }
+
+// Largest tile side whose packs fit the 64-bit pack masks: (tile^2 / W) <= 64.
+template <typename T>
+int64_t max_tile_for() {
+  int64_t tile = 4;
+  while (tile < 32 && (2 * tile) * (2 * tile) / Pack<T>::W <= 64) tile *= 2;
+  return tile;
+}
+
+int64_t max_tile(bool double_precision) { return double_precision ? max_tile_for<double>() : max_tile_for<float>(); }
 
 void check_inputs(const torch::Tensor& m2d, const torch::Tensor& con, const torch::Tensor& op, const torch::Tensor& rad,
                   const torch::Tensor& feat) {
@@ -629,52 +856,97 @@ std::vector<torch::Tensor> bin_gaussians(torch::Tensor means2d, torch::Tensor ra
   return out;
 }
 
-// (image [H, W, D], silhouette [H, W], final transmittance [H, W], blended slots [H, W] int32)
+// Channel c of the groups (sizes summing to the feature count) as a plane of tensor ts[group].
+template <typename P>
+Planes<P> planes_of(const std::vector<int64_t>& groups, const std::vector<P*>& bases) {
+  Planes<P> planes;
+  for (size_t g = 0; g < groups.size(); ++g)
+    for (int64_t c = 0; c < groups[g]; ++c) {
+      planes.ptr.push_back(bases[g] ? bases[g] + c : nullptr);
+      planes.stride.push_back(groups[g]);
+    }
+  return planes;
+}
+
+void check_groups(const std::vector<int64_t>& groups, const torch::Tensor& features) {
+  int64_t total = 0;
+  for (const int64_t g : groups) {
+    TORCH_CHECK(g > 0, "channel groups must be positive, got ", g);
+    total += g;
+  }
+  TORCH_CHECK(total == features.size(1), "channel groups sum to ", total, " but features have ", features.size(1));
+}
+
+// (image groups [H, W, g] for each g in groups..., silhouette [H, W], final transmittance [H, W],
+// blended slots [H, W] int32); the groups split the D feature channels in order.
 std::vector<torch::Tensor> composite_forward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opacities,
                                              torch::Tensor radii, torch::Tensor features, torch::Tensor gids,
-                                             torch::Tensor offsets,
-                                             int64_t width, int64_t height, int64_t tile, double alpha_min,
-                                             double alpha_max, double extent2, double t_min, int64_t threads) {
+                                             torch::Tensor offsets, std::vector<int64_t> groups, int64_t width,
+                                             int64_t height, int64_t tile, double alpha_min, double alpha_max,
+                                             double extent2, double t_min, int64_t threads) {
   check_inputs(means2d, conics, opacities, radii, features);
+  check_groups(groups, features);
   const auto s = make_settings(width, height, tile, features.size(1), alpha_min, alpha_max, extent2, t_min);
-  auto img = torch::zeros({height, width, features.size(1)}, features.options());
-  auto sil = torch::zeros({height, width}, features.options());
-  auto t_final = torch::ones({height, width}, features.options());
-  auto count = torch::zeros({height, width}, torch::kInt32);
+  std::vector<torch::Tensor> outs;
+  for (const int64_t g : groups) outs.push_back(torch::empty({height, width, g}, features.options()));
+  auto sil = torch::empty({height, width}, features.options());  // every pixel written by its tile
+  auto t_final = torch::empty({height, width}, features.options());
+  auto count = torch::empty({height, width}, torch::kInt32);
   const int64_t* off = offsets.data_ptr<int64_t>();
   const int32_t* gid = gids.data_ptr<int32_t>();
   AT_DISPATCH_FLOATING_TYPES(features.scalar_type(), "composite_forward", [&] {
+    TORCH_CHECK(tile <= max_tile_for<scalar_t>(), "tile ", tile, " is above this build's maximum ", max_tile_for<scalar_t>());
+    std::vector<scalar_t*> bases;
+    for (auto& o : outs) bases.push_back(o.data_ptr<scalar_t>());
+    const FrameOut<scalar_t> out{planes_of(groups, bases), sil.data_ptr<scalar_t>(), t_final.data_ptr<scalar_t>(),
+                                 count.data_ptr<int32_t>()};
     forward_all<scalar_t>(s, off, gid, means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
                           opacities.data_ptr<scalar_t>(), radii.data_ptr<scalar_t>(), features.data_ptr<scalar_t>(),
-                          img.data_ptr<scalar_t>(),
-                          sil.data_ptr<scalar_t>(), t_final.data_ptr<scalar_t>(), count.data_ptr<int32_t>(),
-                          static_cast<int>(threads));
+                          out, static_cast<int>(threads));
   });
-  return {img, sil, t_final, count};
+  outs.insert(outs.end(), {sil, t_final, count});
+  return outs;
 }
 
-// Per-Gaussian gradients [N, 6 + D]: (u, v, A, B, C, opacity, features...).
+// Per-Gaussian gradients [N, 6 + D]: (u, v, A, B, C, opacity, features...), from the gradients of
+// the forward's outputs (one per channel group, then the silhouette's; None = zero).
 torch::Tensor composite_backward(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opacities,
                                  torch::Tensor radii, torch::Tensor features, torch::Tensor gids, torch::Tensor offsets,
-                                 torch::Tensor t_final,
-                                 torch::Tensor count, torch::Tensor grad_img, torch::Tensor grad_sil, int64_t width,
-                                 int64_t height, int64_t tile, double alpha_min, double alpha_max, double extent2,
-                                 double t_min, int64_t threads) {
+                                 torch::Tensor t_final, torch::Tensor count, std::vector<int64_t> groups,
+                                 std::vector<c10::optional<torch::Tensor>> grad_groups,
+                                 c10::optional<torch::Tensor> grad_sil, int64_t width, int64_t height, int64_t tile,
+                                 double alpha_min, double alpha_max, double extent2, double t_min, int64_t threads) {
   check_inputs(means2d, conics, opacities, radii, features);
+  check_groups(groups, features);
+  TORCH_CHECK(grad_groups.size() == groups.size(), "one gradient (or None) per channel group");
   const auto s = make_settings(width, height, tile, features.size(1), alpha_min, alpha_max, extent2, t_min);
-  grad_img = grad_img.contiguous().to(features.scalar_type());
-  grad_sil = grad_sil.contiguous().to(features.scalar_type());
+  std::vector<torch::Tensor> grads;  // contiguous, in the features' dtype (kept alive here)
+  for (size_t g = 0; g < groups.size(); ++g) {
+    const auto& t = grad_groups[g];
+    TORCH_CHECK(!t || (t->dim() == 3 && t->size(0) == height && t->size(1) == width && t->size(2) == groups[g]),
+                "gradient of channel group ", g, " must be [H, W, ", groups[g], "]");
+    grads.push_back(t ? t->contiguous().to(features.scalar_type()) : torch::Tensor());
+  }
+  torch::Tensor g_sil;
+  if (grad_sil) {
+    TORCH_CHECK(grad_sil->dim() == 2 && grad_sil->size(0) == height && grad_sil->size(1) == width,
+                "silhouette gradient must be [H, W]");
+    g_sil = grad_sil->contiguous().to(features.scalar_type());
+  }
   const int64_t stride = kGeomGrads + features.size(1);
   auto rows = torch::empty({gids.size(0), stride}, features.options());  // every row written by its tile
   auto out = torch::zeros({means2d.size(0), stride}, features.options());
   const int64_t* off = offsets.data_ptr<int64_t>();
   const int32_t* gid = gids.data_ptr<int32_t>();
   AT_DISPATCH_FLOATING_TYPES(features.scalar_type(), "composite_backward", [&] {
+    TORCH_CHECK(tile <= max_tile_for<scalar_t>(), "tile ", tile, " is above this build's maximum ", max_tile_for<scalar_t>());
+    std::vector<const scalar_t*> bases;
+    for (auto& g : grads) bases.push_back(g.defined() ? g.data_ptr<scalar_t>() : nullptr);
     backward_all<scalar_t>(s, off, gid, means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
                            opacities.data_ptr<scalar_t>(), radii.data_ptr<scalar_t>(), features.data_ptr<scalar_t>(),
-                           grad_img.data_ptr<scalar_t>(),
-                           grad_sil.data_ptr<scalar_t>(), t_final.data_ptr<scalar_t>(), count.data_ptr<int32_t>(),
-                           rows.data_ptr<scalar_t>(), static_cast<int>(threads));
+                           planes_of(groups, bases), g_sil.defined() ? g_sil.data_ptr<scalar_t>() : nullptr,
+                           t_final.data_ptr<scalar_t>(), count.data_ptr<int32_t>(), rows.data_ptr<scalar_t>(),
+                           static_cast<int>(threads));
     reduce_rows<scalar_t>(rows.data_ptr<scalar_t>(), gid, gids.size(0), stride, means2d.size(0),
                           out.data_ptr<scalar_t>(), static_cast<int>(threads));
   });
@@ -728,6 +1000,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   using release = py::call_guard<py::gil_scoped_release>;
   m.def("project_isotropic", &project_isotropic, release(), "EWA projection of isotropic Gaussians");
   m.def("project_isotropic_backward", &project_isotropic_backward, release(), "gradients of project_isotropic");
+  m.def("max_tile", &max_tile, "largest tile side the compositor takes in float (false) or double (true)");
   m.def("bin_gaussians", &bin_gaussians, release(), "tile lists sorted by depth");
   m.def("composite_forward", &composite_forward, release(), "front-to-back compositing");
   m.def("composite_backward", &composite_backward, release(), "gradients of composite_forward per Gaussian");
