@@ -238,9 +238,31 @@ struct Splat {
   T u, v, a, b, c, o;
 };
 
+// The same constants in image pixels plus the footprint radius r, one record per Gaussian (one
+// cache line read per tile it meets, instead of one from each input array).
 template <typename T>
-inline Splat<T> splat_of(int64_t g, const TileView& view, const T* m2d, const T* con, const T* op) {
-  return {m2d[2 * g] - view.x0, m2d[2 * g + 1] - view.y0, T(-0.5) * con[3 * g], -con[3 * g + 1], T(-0.5) * con[3 * g + 2], op[g]};
+struct SplatRecord {
+  Splat<T> sp;
+  T r, pad;
+};
+
+// The kernels' view of the Gaussians: records and feature rows [N, D].
+template <typename T>
+struct SplatScene {
+  const SplatRecord<T>* rec;
+  const T* feat;
+  int channels;
+};
+
+template <typename T>
+std::vector<SplatRecord<T>> splat_records(int64_t n, const T* m2d, const T* con, const T* op, const T* rad,
+                                          int threads) {
+  std::vector<SplatRecord<T>> rec(static_cast<size_t>(n));
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (int64_t g = 0; g < n; ++g)
+    rec[g] = {{m2d[2 * g], m2d[2 * g + 1], T(-0.5) * con[3 * g], -con[3 * g + 1], T(-0.5) * con[3 * g + 2], op[g]},
+              rad[g], T(0)};
+  return rec;
 }
 
 // How a tile's pixels are grouped into packs: a pack is a block of bw x bh = W pixels (4 x 4 for 16
@@ -248,6 +270,8 @@ inline Splat<T> splat_of(int64_t g, const TileView& view, const T* m2d, const T*
 // Compact blocks waste fewer lanes on footprints that cover part of a tile than pixel rows do.
 struct PackLayout {
   int ts, npack, bw, bh, per_row;  // per_row: blocks per row of blocks
+  int bw_shift, bh_shift;          // log2 of bw and bh
+  std::array<uint64_t, 33> block_rows;  // [n]: bit i * per_row set for i < n (n block rows from the first)
 
   // Tile pixel (y * ts + x) of lane l of pack p.
   int pixel(int p, int l) const {
@@ -260,7 +284,9 @@ template <typename T>
 PackLayout pack_layout(int ts) {
   constexpr int W = Pack<T>::W;
   constexpr int bw = W >= 16 ? 4 : (W == 8 ? 4 : 2), bh = W / bw;
-  return {ts, ts * ts / W, bw, bh, ts / bw};
+  PackLayout L{ts, ts * ts / W, bw, bh, ts / bw, __builtin_ctz(bw), __builtin_ctz(bh), {}};
+  for (int n = 1; n <= ts / bh && n < 33; ++n) L.block_rows[n] = L.block_rows[n - 1] | uint64_t(1) << ((n - 1) * L.per_row);
+  return L;
 }
 
 // Bits lo..hi (0 <= lo <= hi <= 63).
@@ -277,12 +303,9 @@ inline uint64_t pack_mask(const PackLayout& L, float u, float v, float r) {
   const float rl = std::max(std::ceil(v - r), 0.f), rh = std::min(std::floor(v + r), last);
   const float cl = std::max(std::ceil(u - r), 0.f), ch = std::min(std::floor(u + r), last);
   if (!(rl <= rh && cl <= ch)) return 0;
-  const int b0 = static_cast<int>(rl) / L.bh, b1 = static_cast<int>(rh) / L.bh;  // rows of blocks
-  const uint64_t cols = bit_range(static_cast<int>(cl) / L.bw, static_cast<int>(ch) / L.bw);
-  const int span = (b1 - b0 + 1) * L.per_row;
-  const uint64_t ones = span >= 64 ? ~uint64_t(0) : (uint64_t(1) << span) - 1;
-  const uint64_t rows = ones / ((uint64_t(1) << L.per_row) - 1);  // bit i * per_row for each block row i
-  return (rows * cols) << (b0 * L.per_row);
+  const int b0 = static_cast<int>(rl) >> L.bh_shift, b1 = static_cast<int>(rh) >> L.bh_shift;  // block rows
+  const uint64_t cols = bit_range(static_cast<int>(cl) >> L.bw_shift, static_cast<int>(ch) >> L.bw_shift);
+  return (L.block_rows[b1 - b0 + 1] * cols) << (b0 * L.per_row);
 }
 
 // The tile's Gaussians in slot (depth) order: splat constants, feature rows and the packs each can
@@ -295,19 +318,20 @@ struct TileSplats {
   std::vector<T> zero_row;
 
   // Slots 0..K-1 of the view, then one inert slot K (opacity 0, zero features) that pads loops.
-  void gather(const PackLayout& L, const TileView& view, const int32_t* gids, const T* m2d, const T* con, const T* op,
-              const T* rad, const T* features, int D) {
+  void gather(const PackLayout& L, const TileView& view, const int32_t* gids, const SplatScene<T>& scene) {
     const size_t K = static_cast<size_t>(view.end - view.begin);
+    const int D = scene.channels;
     for (auto* x : {&u, &v, &a, &b, &c, &o}) x->resize(K + 1);
     packs.resize(K + 1);
     feat.resize(K + 1);
     zero_row.assign(D, T(0));
     for (size_t k = 0; k < K; ++k) {
       const int32_t g = gids[view.begin + k];
-      const Splat<T> sp = splat_of(g, view, m2d, con, op);
-      u[k] = sp.u, v[k] = sp.v, a[k] = sp.a, b[k] = sp.b, c[k] = sp.c, o[k] = sp.o;
-      feat[k] = features + static_cast<int64_t>(g) * D;
-      packs[k] = pack_mask(L, float(sp.u), float(sp.v), float(rad[g]));
+      const SplatRecord<T>& rec = scene.rec[g];
+      u[k] = rec.sp.u - view.x0, v[k] = rec.sp.v - view.y0, a[k] = rec.sp.a, b[k] = rec.sp.b, c[k] = rec.sp.c;
+      o[k] = rec.sp.o;
+      feat[k] = scene.feat + static_cast<int64_t>(g) * D;
+      packs[k] = pack_mask(L, float(u[k]), float(v[k]), float(rec.r));
     }
     u[K] = v[K] = a[K] = b[K] = c[K] = o[K] = T(0);
     feat[K] = zero_row.data();
@@ -376,15 +400,15 @@ void pixel_grid(const PackLayout& L, T* px, T* py) {
 // time). Per pixel the blending order is the same as a Gaussian-major loop over all slots, so
 // results do not depend on the loop order.
 template <typename T, int DC>
-void forward_tile(const Settings& s, int tile, const int64_t* offsets, const int32_t* gids, const T* m2d, const T* con,
-                  const T* op, const T* rad, const T* feat, const FrameOut<T>& out, Scratch<T>& sc) {
+void forward_tile(const Settings& s, int tile, const int64_t* offsets, const int32_t* gids, const SplatScene<T>& scene,
+                  const FrameOut<T>& out, Scratch<T>& sc) {
   constexpr int W = Pack<T>::W;
   const int ts = s.tile, npix = ts * ts, D = DC > 0 ? DC : s.channels;
   const PackLayout layout = pack_layout<T>(ts);
   const TileView view = tile_view(s, tile, offsets);
   const int64_t K = view.end - view.begin;
   TileSplats<T>& sp = sc.splats;
-  sp.gather(layout, view, gids, m2d, con, op, rad, feat, D);
+  sp.gather(layout, view, gids, scene);
   // Slots meeting each pack, in depth order, padded with the inert slot K to an even count.
   const int64_t cap = K + 2;
   sc.slots.resize(static_cast<size_t>(layout.npack) * cap);
@@ -451,9 +475,9 @@ void forward_tile(const Settings& s, int tile, const int64_t* offsets, const int
 // S_i = sum_{j>i} w_j c_j grows as we go, so dL/dalpha_i = T_i c_i - S_i / (1 - alpha_i).
 // Each Gaussian visits only the packs its footprint meets and in which some pixel blended it.
 template <typename T, int DC>
-void backward_tile(const Settings& s, int tile, const int64_t* offsets, const int32_t* gids, const T* m2d, const T* con,
-                   const T* op, const T* rad, const T* feat, const Planes<const T>& g_img, const T* g_sil,
-                   const T* t_final, const int32_t* count, T* out, Scratch<T>& sc) {
+void backward_tile(const Settings& s, int tile, const int64_t* offsets, const int32_t* gids, const SplatScene<T>& scene,
+                   const Planes<const T>& g_img, const T* g_sil, const T* t_final, const int32_t* count, T* out,
+                   Scratch<T>& sc) {
   constexpr int W = Pack<T>::W;
   const int ts = s.tile, npix = ts * ts, D = DC > 0 ? DC : s.channels, stride = kGeomGrads + D;
   const PackLayout layout = pack_layout<T>(ts);
@@ -496,7 +520,7 @@ void backward_tile(const Settings& s, int tile, const int64_t* offsets, const in
   std::fill(out + (view.begin + max_count) * stride, out + view.end * stride, T(0));
   const TileView blended{view.x0, view.y0, view.begin, view.begin + max_count};
   TileSplats<T>& sp = sc.splats;
-  sp.gather(layout, blended, gids, m2d, con, op, rad, feat, D);
+  sp.gather(layout, blended, gids, scene);
   // Packs in decreasing order of that count: slot k is live in the packs of the first entries.
   std::sort(by_count.begin(), by_count.end(), [](auto a, auto b) { return a.first > b.first; });
   uint64_t live_packs = 0;
@@ -585,8 +609,8 @@ void clear_tile(const Settings& s, int tile, const FrameOut<T>& out) {
 }
 
 template <typename T>
-void forward_all(const Settings& s, const int64_t* off, const int32_t* gid, const T* m, const T* c, const T* o,
-                 const T* r, const T* f, const FrameOut<T>& out, int threads) {
+void forward_all(const Settings& s, const int64_t* off, const int32_t* gid, const SplatScene<T>& scene,
+                 const FrameOut<T>& out, int threads) {
   const int num_tiles = s.tiles_x * s.tiles_y;
 #pragma omp parallel num_threads(threads)
   {
@@ -598,16 +622,16 @@ void forward_all(const Settings& s, const int64_t* off, const int32_t* gid, cons
         continue;
       }
       with_channels(s.channels, [&](auto dc) {
-        forward_tile<T, decltype(dc)::value>(s, t, off, gid, m, c, o, r, f, out, scratch);
+        forward_tile<T, decltype(dc)::value>(s, t, off, gid, scene, out, scratch);
       });
     }
   }
 }
 
 template <typename T>
-void backward_all(const Settings& s, const int64_t* off, const int32_t* gid, const T* m, const T* c, const T* o,
-                  const T* r, const T* f, const Planes<const T>& gi, const T* gs, const T* t_final,
-                  const int32_t* count, T* out, int threads) {
+void backward_all(const Settings& s, const int64_t* off, const int32_t* gid, const SplatScene<T>& scene,
+                  const Planes<const T>& gi, const T* gs, const T* t_final, const int32_t* count, T* out,
+                  int threads) {
   const int num_tiles = s.tiles_x * s.tiles_y;
 #pragma omp parallel num_threads(threads)
   {
@@ -616,7 +640,7 @@ void backward_all(const Settings& s, const int64_t* off, const int32_t* gid, con
     for (int t = 0; t < num_tiles; ++t) {
       if (off[t + 1] == off[t]) continue;
       with_channels(s.channels, [&](auto dc) {
-        backward_tile<T, decltype(dc)::value>(s, t, off, gid, m, c, o, r, f, gi, gs, t_final, count, out, scratch);
+        backward_tile<T, decltype(dc)::value>(s, t, off, gid, scene, gi, gs, t_final, count, out, scratch);
       });
     }
   }
@@ -856,6 +880,13 @@ std::vector<torch::Tensor> bin_gaussians(torch::Tensor means2d, torch::Tensor ra
   return out;
 }
 
+template <typename T>
+std::vector<SplatRecord<T>> records(const torch::Tensor& m2d, const torch::Tensor& con, const torch::Tensor& op,
+                                    const torch::Tensor& rad, int64_t threads) {
+  return splat_records<T>(m2d.size(0), m2d.data_ptr<T>(), con.data_ptr<T>(), op.data_ptr<T>(), rad.data_ptr<T>(),
+                          static_cast<int>(threads));
+}
+
 // Channel c of the groups (sizes summing to the feature count) as a plane of tensor ts[group].
 template <typename P>
 Planes<P> planes_of(const std::vector<int64_t>& groups, const std::vector<P*>& bases) {
@@ -900,9 +931,9 @@ std::vector<torch::Tensor> composite_forward(torch::Tensor means2d, torch::Tenso
     for (auto& o : outs) bases.push_back(o.data_ptr<scalar_t>());
     const FrameOut<scalar_t> out{planes_of(groups, bases), sil.data_ptr<scalar_t>(), t_final.data_ptr<scalar_t>(),
                                  count.data_ptr<int32_t>()};
-    forward_all<scalar_t>(s, off, gid, means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
-                          opacities.data_ptr<scalar_t>(), radii.data_ptr<scalar_t>(), features.data_ptr<scalar_t>(),
-                          out, static_cast<int>(threads));
+    const auto rec = records<scalar_t>(means2d, conics, opacities, radii, threads);
+    forward_all<scalar_t>(s, off, gid, {rec.data(), features.data_ptr<scalar_t>(), s.channels}, out,
+                          static_cast<int>(threads));
   });
   outs.insert(outs.end(), {sil, t_final, count});
   return outs;
@@ -942,8 +973,8 @@ torch::Tensor composite_backward(torch::Tensor means2d, torch::Tensor conics, to
     TORCH_CHECK(tile <= max_tile_for<scalar_t>(), "tile ", tile, " is above this build's maximum ", max_tile_for<scalar_t>());
     std::vector<const scalar_t*> bases;
     for (auto& g : grads) bases.push_back(g.defined() ? g.data_ptr<scalar_t>() : nullptr);
-    backward_all<scalar_t>(s, off, gid, means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
-                           opacities.data_ptr<scalar_t>(), radii.data_ptr<scalar_t>(), features.data_ptr<scalar_t>(),
+    const auto rec = records<scalar_t>(means2d, conics, opacities, radii, threads);
+    backward_all<scalar_t>(s, off, gid, {rec.data(), features.data_ptr<scalar_t>(), s.channels},
                            planes_of(groups, bases), g_sil.defined() ? g_sil.data_ptr<scalar_t>() : nullptr,
                            t_final.data_ptr<scalar_t>(), count.data_ptr<int32_t>(), rows.data_ptr<scalar_t>(),
                            static_cast<int>(threads));
