@@ -22,7 +22,7 @@ class RenderSettings:
         tile_size: tile side in pixels for the torch backend (8 is fastest on CPU).
         cpu_tile_size: tile side of the compiled cpu backend (4, 8, 16 or 32; capped at the build's
             largest, 32 with AVX-512 float32, else 16); 0 picks 32 (measured fastest from 80x60 to
-            640x480). Tiling never changes the image, only the speed.
+            640x480). Tiling changes the image only by float rounding (pixel offsets from tile corners).
         near_plane: Gaussians with camera-frame z at or below this (m) are culled whole.
         eps2d: isotropic dilation added to every 2D covariance (px^2), as 3DGS/gsplat.
         alpha_max: per-Gaussian alpha clamp (0.99 as the reference rasterizer; gsplat uses 0.999).

@@ -103,9 +103,10 @@ inline double hsum(V<double> v) {
   return v[0];
 }
 
-// Horizontal sums of n <= W vectors at once: with AVX-512, a shuffle tree that halves the lanes of
-// pairs of vectors at each level (15 shuffle pairs for 16 vectors instead of 4 per vector); the
-// order of additions is fixed, so results are deterministic. Other widths sum vector by vector.
+// Horizontal sums of n vectors: with AVX-512, 16 at a time by a shuffle tree that halves the lanes
+// of pairs of vectors at each level (15 shuffle pairs for 16 vectors instead of 4 per vector). Each
+// sum adds the same lane pairs in the same order as hsum(), so results are equal bit for bit and
+// deterministic. Other widths sum vector by vector.
 #if defined(__AVX512F__)
 inline V<float> fold8(V<float> a, V<float> b) {
   return __builtin_shufflevector(a, b, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23) +
@@ -123,7 +124,7 @@ inline V<float> fold1(V<float> a, V<float> b) {
   return __builtin_shufflevector(a, b, 0, 16, 2, 18, 4, 20, 6, 22, 8, 24, 10, 26, 12, 28, 14, 30) +
          __builtin_shufflevector(a, b, 1, 17, 3, 19, 5, 21, 7, 23, 9, 25, 11, 27, 13, 29, 15, 31);
 }
-inline V<float> fold_tree(const V<float>* v) {  // v[16] -> lane l holds the sum of v[kTreeLane[l]]
+inline V<float> fold_tree(const V<float>* v) {  // v[16] -> lane l holds the sum of v[tree_lanes()[l]]
   V<float> a[8], b[4], c[2];
   for (int i = 0; i < 8; ++i) a[i] = fold8(v[2 * i], v[2 * i + 1]);
   for (int i = 0; i < 4; ++i) b[i] = fold4(a[2 * i], a[2 * i + 1]);
