@@ -42,6 +42,18 @@ def _cpu_fingerprint() -> str:
     return hashlib.sha1(text.encode()).hexdigest()[:8]
 
 
+def _build(name: str, extra_cflags: tuple[str, ...] = ()) -> ModuleType:
+    from torch.utils.cpp_extension import load  # noqa: PLC0415 - heavy, and only needed here
+
+    return load(
+        name=name,
+        sources=[str(_SOURCE)],
+        extra_cflags=["-O3", "-march=native", "-fopenmp", "-fno-math-errno", "-fno-trapping-math", *extra_cflags],
+        extra_ldflags=["-fopenmp"],
+        verbose=bool(os.environ.get("SGS_SLAM_VERBOSE_BUILD")),
+    )
+
+
 def extension() -> ModuleType:
     """The compiled module, building it on first call; raises :class:`BackendUnavailableError`."""
     if _state["module"] is not None:
@@ -52,16 +64,8 @@ def extension() -> ModuleType:
         _state["error"] = "the compiled CPU backend is disabled by SGS_SLAM_NO_CPP"
         raise BackendUnavailableError(_state["error"])
     try:
-        from torch.utils.cpp_extension import load  # noqa: PLC0415 - heavy, and only needed here
-
         log.info("building the compiled CPU renderer (first use on this machine, about a minute)")
-        _state["module"] = load(
-            name=f"sgs_slam_cpu_render_{_cpu_fingerprint()}",
-            sources=[str(_SOURCE)],
-            extra_cflags=["-O3", "-march=native", "-fopenmp", "-fno-math-errno", "-fno-trapping-math"],
-            extra_ldflags=["-fopenmp"],
-            verbose=bool(os.environ.get("SGS_SLAM_VERBOSE_BUILD")),
-        )
+        _state["module"] = _build(f"sgs_slam_cpu_render_{_cpu_fingerprint()}")
     except Exception as err:
         _state["error"] = (
             f"cannot build the compiled CPU renderer ({type(err).__name__}: {str(err).splitlines()[0][:300]}); "
@@ -69,6 +73,15 @@ def extension() -> ModuleType:
         )
         raise BackendUnavailableError(_state["error"]) from err
     return _state["module"]
+
+
+def build_variant(tag: str, extra_cflags: tuple[str, ...]) -> ModuleType:
+    """The kernels built with extra compiler flags under their own cache name (about a minute).
+
+    For tests of the code paths other CPUs take, e.g. ``("-mno-avx512f",)`` for the AVX2 build on
+    an AVX-512 machine; :func:`extension` is unaffected. Raises what the build raises.
+    """
+    return _build(f"sgs_slam_cpu_render_{_cpu_fingerprint()}_{tag}", extra_cflags)
 
 
 def is_available() -> bool:

@@ -160,3 +160,18 @@ def test_without_semantics_the_semantic_group_is_empty():
             for b in ("torch", "cpu")}  # fmt: skip
     assert outs["cpu"].semantic.shape == (48, 64, 0)
     assert (outs["cpu"].color - outs["torch"].color).abs().max() < 1e-12
+
+
+def test_the_build_without_avx512_matches_the_reference(monkeypatch):
+    """The paths of CPUs without AVX-512 (8-lane packs, 16 px tiles, portable exp and sums)."""
+    ext = cpu_backend.build_variant("noavx512", ("-mno-avx512f",))
+    assert ext.max_tile(False) == 16 and ext.max_tile(True) == 16
+    monkeypatch.setitem(cpu_backend._state, "module", ext)
+    for dtype, fwd_tol, grad_tol in ((torch.float64, 1e-12, 1e-10), (torch.float32, 2e-5, 2e-4)):
+        gm, k = random_scene(1500, 97, 61, seed=32, dtype=dtype, behind=100)
+        ref, g_ref = forward_backward(gm, k, "torch")
+        got, g_got = forward_backward(gm, k, "cpu")
+        for name in ("color", "depth", "silhouette", "semantic"):
+            assert (getattr(got, name) - getattr(ref, name)).abs().max().item() < fwd_tol, name
+        for name, grad in g_ref.items():
+            assert (g_got[name] - grad).abs().max().item() <= grad_tol * grad.abs().max().item(), name
