@@ -175,3 +175,16 @@ def test_the_build_without_avx512_matches_the_reference(monkeypatch):
             assert (getattr(got, name) - getattr(ref, name)).abs().max().item() < fwd_tol, name
         for name, grad in g_ref.items():
             assert (g_got[name] - grad).abs().max().item() <= grad_tol * grad.abs().max().item(), name
+
+
+@pytest.mark.parametrize("semantic", [1, 12])  # channel counts without a specialised kernel (D = 5, 16)
+def test_any_channel_count(semantic):
+    for dtype, fwd_tol, grad_tol in ((torch.float64, 1e-12, 1e-10), (torch.float32, 2e-5, 2e-4)):
+        gm, k = random_scene(700, 70, 50, seed=semantic, dtype=dtype, semantic=semantic)
+        ref, g_ref = forward_backward(gm, k, "torch")
+        got, g_got = forward_backward(gm, k, "cpu")
+        assert got.semantic.shape == (50, 70, semantic)
+        for name in ("color", "depth", "silhouette", "semantic"):
+            assert (getattr(got, name) - getattr(ref, name)).abs().max().item() < fwd_tol, name
+        for name, grad in g_ref.items():
+            assert (g_got[name] - grad).abs().max().item() <= grad_tol * grad.abs().max().item(), name
