@@ -31,6 +31,24 @@ def forward_backward(gm, k, backend, channels=("color", "depth", "silhouette", "
     return out, {n: p.grad for n, p in params.items()} | {"pose": xi.grad}
 
 
+# (dtype, forward tolerance (absolute), gradient tolerance (relative to the largest entry))
+TOLERANCES = ((torch.float64, 1e-12, 1e-10), (torch.float32, 2e-5, 2e-4))
+
+
+def assert_parity(n, w, h, seed, scene=None, **settings):
+    """Compiled vs torch forward and gradients on a random scene, in float64 and float32."""
+    for dtype, fwd_tol, grad_tol in TOLERANCES:
+        gm, k = random_scene(n, w, h, seed=seed, dtype=dtype, **(scene or {}))
+        ref, g_ref = forward_backward(gm, k, "torch", **settings)
+        got, g_got = forward_backward(gm, k, "cpu", **settings)
+        assert got.backend == "cpu" and ref.silhouette.max() > 0.5
+        assert got.semantic.shape == ref.semantic.shape
+        for name in ("color", "depth", "silhouette", "semantic"):
+            assert (getattr(got, name) - getattr(ref, name)).abs().max().item() < fwd_tol, name
+        for name, grad in g_ref.items():
+            assert (g_got[name] - grad).abs().max().item() <= grad_tol * grad.abs().max().item(), name
+
+
 @pytest.mark.parametrize(
     ("n", "w", "h", "kwargs", "settings"),
     [
@@ -43,16 +61,7 @@ def forward_backward(gm, k, backend, channels=("color", "depth", "silhouette", "
     ],
 )
 def test_parity_with_the_torch_reference(n, w, h, kwargs, settings):
-    for dtype, fwd_tol, grad_tol in ((torch.float64, 1e-12, 1e-10), (torch.float32, 2e-5, 2e-4)):
-        gm, k = random_scene(n, w, h, seed=n, dtype=dtype, **kwargs)
-        ref, g_ref = forward_backward(gm, k, "torch", **settings)
-        got, g_got = forward_backward(gm, k, "cpu", **settings)
-        assert got.backend == "cpu" and ref.silhouette.max() > 0.5
-        for name in ("color", "depth", "silhouette", "semantic"):
-            assert (getattr(got, name) - getattr(ref, name)).abs().max().item() < fwd_tol, name
-        for name, grad in g_ref.items():
-            scale = grad.abs().max().item()
-            assert (g_got[name] - grad).abs().max().item() <= grad_tol * scale, name
+    assert_parity(n, w, h, seed=n, scene=kwargs, **settings)
 
 
 @pytest.mark.parametrize("anisotropic", [False, True])
@@ -167,24 +176,9 @@ def test_the_build_without_avx512_matches_the_reference(monkeypatch):
     ext = cpu_backend.build_variant("noavx512", ("-mno-avx512f",))
     assert ext.max_tile(False) == 16 and ext.max_tile(True) == 16
     monkeypatch.setitem(cpu_backend._state, "module", ext)
-    for dtype, fwd_tol, grad_tol in ((torch.float64, 1e-12, 1e-10), (torch.float32, 2e-5, 2e-4)):
-        gm, k = random_scene(1500, 97, 61, seed=32, dtype=dtype, behind=100)
-        ref, g_ref = forward_backward(gm, k, "torch")
-        got, g_got = forward_backward(gm, k, "cpu")
-        for name in ("color", "depth", "silhouette", "semantic"):
-            assert (getattr(got, name) - getattr(ref, name)).abs().max().item() < fwd_tol, name
-        for name, grad in g_ref.items():
-            assert (g_got[name] - grad).abs().max().item() <= grad_tol * grad.abs().max().item(), name
+    assert_parity(1500, 97, 61, seed=32, scene={"behind": 100})
 
 
 @pytest.mark.parametrize("semantic", [1, 12])  # channel counts without a specialised kernel (D = 5, 16)
 def test_any_channel_count(semantic):
-    for dtype, fwd_tol, grad_tol in ((torch.float64, 1e-12, 1e-10), (torch.float32, 2e-5, 2e-4)):
-        gm, k = random_scene(700, 70, 50, seed=semantic, dtype=dtype, semantic=semantic)
-        ref, g_ref = forward_backward(gm, k, "torch")
-        got, g_got = forward_backward(gm, k, "cpu")
-        assert got.semantic.shape == (50, 70, semantic)
-        for name in ("color", "depth", "silhouette", "semantic"):
-            assert (getattr(got, name) - getattr(ref, name)).abs().max().item() < fwd_tol, name
-        for name, grad in g_ref.items():
-            assert (g_got[name] - grad).abs().max().item() <= grad_tol * grad.abs().max().item(), name
+    assert_parity(700, 70, 50, seed=semantic, scene={"semantic": semantic})
