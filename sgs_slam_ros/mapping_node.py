@@ -28,6 +28,7 @@ from msg_adapters import AdapterError, gaussians_to_cloud, pack_rgb, pose_to_c2w
 from msg_adapters.pointcloud import POINT_DTYPE
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
+from sgs_slam_core.live import MapJob, SlamPipeline
 from sgs_slam_core.mapio import load_map, save_map
 from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
 from sgs_slam_ros.diagnostics import Diagnostics, RateMeter
@@ -35,7 +36,6 @@ from sgs_slam_ros.edits import requested_edits
 from sgs_slam_ros.frames import FrameAssembler
 from sgs_slam_ros.messages import image_msg, pointcloud_msg
 from sgs_slam_ros.params import COMMON, EDIT, MAPPING, declare, slam_config
-from sgs_slam_ros.pipeline import MapJob, SlamPipeline
 from sgs_slam_ros.qos import input_qos, latched_qos, output_qos
 from sgs_slam_ros.runtime import run_nodes
 

@@ -20,12 +20,12 @@ from std_srvs.srv import Trigger
 from msg_adapters import AdapterError, gaussians_from_cloud, pointcloud_to_numpy, stamp_to_ns
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
+from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.slam.system import Slam, TrackOutcome
 from sgs_slam_ros.diagnostics import Diagnostics, RateMeter
 from sgs_slam_ros.frames import FrameAssembler
 from sgs_slam_ros.messages import path_msg, pose_msg
 from sgs_slam_ros.params import COMMON, TRACKING, declare, slam_config
-from sgs_slam_ros.pipeline import SlamPipeline
 from sgs_slam_ros.qos import input_qos, latched_qos, output_qos
 from sgs_slam_ros.runtime import run_nodes
 
@@ -102,8 +102,7 @@ class TrackingNode(Node):
             self.assembler.reject("bad map message", str(err))
             return
         self._remote_map_stamp = stamp_to_ns(msg.header.stamp)
-        with self.pipeline._cv:
-            self.pipeline._cv.notify_all()
+        self.pipeline.wake()
 
     def _remote_map_ready(self, frames_tracked: int) -> bool:
         """Lockstep across processes: the mapper's map must include the last tracked frame.

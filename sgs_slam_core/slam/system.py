@@ -312,6 +312,10 @@ class Slam:
             self._set_gaussians(gaussians.to(self.device))
 
     def _set_gaussians(self, gaussians: GaussianMap) -> None:
+        if self.device.type == "cuda":
+            stream = torch.cuda.current_stream(self.device)
+            if stream != torch.cuda.default_stream(self.device):
+                stream.synchronize()  # made on a side stream (live mapping): complete before it is shared
         with self._lock:
             self.gaussians = gaussians
 

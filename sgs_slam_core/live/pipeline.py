@@ -1,23 +1,33 @@
-"""The processing engine behind the nodes: a tracking thread and a mapping thread around core ``Slam``.
+"""Live SLAM: a tracking thread and a mapping thread around one :class:`~sgs_slam_core.slam.system.Slam`.
 
-ROS callbacks only convert and hand over frames; the work happens on two worker threads so
-executors stay responsive. Live (default): only the newest pending frame and the newest pending
-mapping job are kept; replaced ones are counted as drops, and tracking of the next frame overlaps
-with mapping of the previous one (the map object is immutable, so the tracker reads a consistent
-snapshot). Lockstep: every frame is kept and frame t is tracked only after frame t-1 is mapped
-(or, with a separate mapping process, after its map for frame t-1 has arrived).
+The one place where the SLAM's concurrency lives; the ROS nodes and ``sgs-slam run --realtime``
+both drive it. Callers only hand over frames; the work happens on two worker threads.
+
+- **Live** (default): a queue of one, as a live camera's. A frame that arrives while an older one
+  still waits for the tracker replaces it (counted in ``frames_dropped``); mapping jobs likewise
+  (``jobs_dropped``). Tracking of new frames overlaps with mapping of older ones; the map object is
+  immutable and replaced whole, so the tracker always renders one consistent map version.
+- **Lockstep**: every frame is kept and frame t is tracked only after frame t-1 is mapped (or, with
+  a separate mapping process, after ``ready_to_track`` says its map has arrived).
+
+On CUDA the mapping thread runs on its own stream. Two synchronisations make that safe: ``Slam``
+finishes a side stream's work before it publishes a map (``Slam._set_gaussians``), and tracking
+reads its result back to the host before it returns, so no tensor is freed while a kernel of the
+other thread may still read it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 import traceback
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
 
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
@@ -32,12 +42,12 @@ class MapJob:
 
     frame: Frame
     tracked: TrackOutcome | None = None
-    c2w: np.ndarray | None = None  # registered when ``tracked`` is None
+    c2w: np.ndarray | None = None  # [4, 4] registered when ``tracked`` is None
 
 
 @dataclass
 class PipelineStats:
-    """Counters for /diagnostics."""
+    """Counters of what happened to the frames handed over (for /diagnostics and metrics.json)."""
 
     frames_in: int = 0
     tracked: int = 0
@@ -47,11 +57,16 @@ class PipelineStats:
     tracking_failures: int = 0
     errors: int = 0
     last_error: str = ""
-    latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=50))
+    latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=50))  # arrival -> pose (s)
 
 
 class SlamPipeline:
-    """Feeds frames to ``slam`` on worker threads and reports poses and mapped frames to listeners."""
+    """Feeds frames to ``slam`` on worker threads and reports poses and mapped frames to listeners.
+
+    ``track`` / ``map``: which workers run here (a standalone tracking or mapping node runs one).
+    ``ready_to_track(frames_tracked)``: an extra lockstep condition (a remote map has caught up).
+    Listeners are called on the worker threads; one that raises is logged and counted.
+    """
 
     def __init__(
         self,
@@ -64,7 +79,7 @@ class SlamPipeline:
     ) -> None:
         self.slam, self.lockstep, self.log = slam, lockstep, log
         self.track_enabled, self.map_enabled = track, map
-        self.ready_to_track = ready_to_track  # extra lockstep condition (e.g. a remote map has caught up)
+        self.ready_to_track = ready_to_track
         self.stats = PipelineStats()
         self.pose_listeners: list[Callable[[Frame, TrackOutcome], None]] = []
         self.map_listeners: list[Callable[[Frame, TrackOutcome, MapOutcome], None]] = []
@@ -74,6 +89,7 @@ class SlamPipeline:
         self._cv = threading.Condition()
         self._busy = {"track": False, "map": False}
         self._running = True
+        self._map_stream = torch.cuda.Stream(slam.device) if slam.device.type == "cuda" else None
         self._threads = []
         if track:
             self._threads.append(threading.Thread(target=self._track_loop, name="sgs-track", daemon=True))
@@ -83,8 +99,8 @@ class SlamPipeline:
             t.start()
 
     # ------------------------------------------------------------------ input
-    def submit_frame(self, frame: Frame, received_at: float) -> None:
-        """A synchronised frame from the sensors (called from ROS callbacks)."""
+    def submit_frame(self, frame: Frame, received_at: float | None = None) -> None:
+        """A synchronised frame from the sensors; ``received_at``: ``time.monotonic()`` of its arrival."""
         with self._cv:
             self.stats.frames_in += 1
             if self.paused:
@@ -93,7 +109,7 @@ class SlamPipeline:
             if not self.lockstep and self._frames:
                 self._frames.clear()
                 self.stats.dropped_frames += 1
-            self._frames.append((received_at, frame))
+            self._frames.append((time.monotonic() if received_at is None else received_at, frame))
             self._cv.notify_all()
 
     def submit_job(self, job: MapJob) -> None:
@@ -111,6 +127,15 @@ class SlamPipeline:
     # ------------------------------------------------------------------ workers
     def _mapping_idle(self) -> bool:
         return not self.map_enabled or (not self._jobs and not self._busy["map"])
+
+    def _can_track(self) -> bool:
+        if not self.lockstep:
+            # live: the first frame goes at once, later ones once there is a map to track against
+            return (not self.map_enabled or self.slam.frames_processed == 0 or self.slam.num_gaussians > 0
+                    or self._mapping_idle())  # fmt: skip
+        if self.map_enabled and not self._mapping_idle():
+            return False
+        return self.ready_to_track is None or self.ready_to_track(self.slam.frames_processed)
 
     def _track_loop(self) -> None:
         while True:
@@ -140,13 +165,6 @@ class SlamPipeline:
             if self.map_enabled:
                 self.submit_job(MapJob(frame, outcome))
 
-    def _can_track(self) -> bool:
-        if not self.lockstep:
-            return True
-        if self.map_enabled and not self._mapping_idle():
-            return False
-        return self.ready_to_track is None or self.ready_to_track(self.slam.frames_processed)
-
     def _map_loop(self) -> None:
         while True:
             with self._cv:
@@ -157,18 +175,27 @@ class SlamPipeline:
                     continue
                 job = self._jobs.popleft()
                 self._busy["map"] = True
-            result = None
+            result, tracked = None, job.tracked
             try:
-                tracked = job.tracked or self.slam.register(job.frame, job.c2w)
-                result = self.slam.map(job.frame, tracked)
+                with self._on_map_stream():
+                    tracked = job.tracked or self.slam.register(job.frame, job.c2w)
+                    result = self.slam.map(job.frame, tracked)
             except Exception as err:
                 self._error("mapping", err)
             with self._cv:
                 self._busy["map"] = False
                 self.stats.mapped += int(result is not None)
                 self._cv.notify_all()
-            if result is not None:
+            if result is not None and tracked is not None:
                 self._notify("publishing the map", self.map_listeners, job.frame, tracked, result)
+
+    @contextlib.contextmanager
+    def _on_map_stream(self) -> Iterator[None]:
+        if self._map_stream is None:
+            yield
+            return
+        with torch.cuda.stream(self._map_stream):
+            yield
 
     def _notify(self, stage: str, listeners: list[Callable[..., None]], *args: object) -> None:
         """Call every listener; one that raises is logged and counted, and the worker goes on.
@@ -191,14 +218,15 @@ class SlamPipeline:
     def idle(self) -> bool:
         """Nothing queued and no worker busy."""
         with self._cv:
-            return not self._frames and not self._jobs and not any(self._busy.values())
+            return self._idle()
+
+    def _idle(self) -> bool:
+        return not self._frames and not self._jobs and not any(self._busy.values())
 
     def wait_idle(self, timeout: float) -> bool:
-        """Block until idle (or the timeout); True when idle."""
+        """Block until idle (or the timeout, s); True when idle."""
         with self._cv:
-            return self._cv.wait_for(
-                lambda: not self._frames and not self._jobs and not any(self._busy.values()), timeout=timeout
-            )
+            return self._cv.wait_for(self._idle, timeout=timeout)
 
     def pause(self, paused: bool) -> None:
         """Stop (or resume) accepting frames; queued work is dropped when pausing."""
@@ -210,7 +238,7 @@ class SlamPipeline:
             self._cv.notify_all()
 
     def reset(self, timeout: float = 30.0) -> bool:
-        """Drop queued work, wait for the workers, and reset the SLAM state; False on timeout."""
+        """Drop queued work, wait for the workers, and reset the SLAM state; False on timeout (s)."""
         with self._cv:
             self._frames.clear()
             self._jobs.clear()
@@ -219,6 +247,11 @@ class SlamPipeline:
             self.slam.reset()
             self._cv.notify_all()
         return True
+
+    def wake(self) -> None:
+        """Re-check the conditions the workers wait on (e.g. after ``ready_to_track`` may have changed)."""
+        with self._cv:
+            self._cv.notify_all()
 
     def exclusive(self, timeout: float = 30.0) -> _Exclusive:
         """Context manager: workers idle and blocked while the body runs (save/load/edit the map)."""
