@@ -11,7 +11,11 @@ setup(
     license="Apache-2.0",
     python_requires=">=3.10",
     packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
-    package_data={"sgs_slam_core.config": ["presets/*.yaml"], "sgs_slam_core.render": ["cpu/*.cpp"]},
+    package_data={
+        "sgs_slam_core.config": ["presets/*.yaml"],
+        "sgs_slam_core.render": ["cpu/*.cpp"],
+        "sgs_slam_core.slam": ["cpu/*.cpp"],
+    },
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -19,7 +23,7 @@ setup(
     zip_safe=True,
     install_requires=[
         "numpy>=1.24",
-        "torch>=2.1",
+        "torch>=2.4",  # fused Adam on the CPU
         "opencv-python-headless>=4.8",
         "pyyaml>=6",
         "rosbags>=0.11",

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from typing import Literal
 
 import torch
@@ -17,7 +18,7 @@ from torch import Tensor
 
 from sgs_slam_core.errors import ShapeError
 
-__all__ = ["MS_SSIM_WEIGHTS", "depth_l1", "ms_ssim", "psnr", "ssim"]
+__all__ = ["MS_SSIM_WEIGHTS", "blur_band", "blur_conv", "depth_l1", "gaussian_window", "ms_ssim", "psnr", "ssim"]
 
 MS_SSIM_WEIGHTS = (0.0448, 0.2856, 0.3001, 0.2363, 0.1333)
 _C1, _C2 = 0.01**2, 0.03**2
@@ -45,7 +46,8 @@ def psnr(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
     return float("inf") if mse.item() == 0 else float(-10 * torch.log10(mse))
 
 
-def _gaussian_window(size: int, sigma: float, like: Tensor) -> Tensor:  # [size] normalised 1D taps
+def gaussian_window(size: int, sigma: float, like: Tensor) -> Tensor:  # [size] normalised 1D taps
+    """The SSIM window's 1D taps (dtype and device of ``like``)."""
     x = torch.arange(size, dtype=like.dtype, device=like.device) - (size - 1) / 2
     g = torch.exp(-(x**2) / (2 * sigma**2))
     return g / g.sum()
@@ -54,31 +56,48 @@ def _gaussian_window(size: int, sigma: float, like: Tensor) -> Tensor:  # [size]
 @functools.lru_cache(maxsize=32)
 def _band(n: int, size: int, sigma: float, pad: int, dtype: torch.dtype, device: torch.device) -> Tensor:
     """[n_out, n] matrix applying the 1D window along an axis; zero padding by ``pad`` (0 = valid)."""
-    taps = _gaussian_window(size, sigma, torch.empty(0, dtype=dtype, device=device))
+    taps = gaussian_window(size, sigma, torch.empty(0, dtype=dtype, device=device))
     n_out = n + 2 * pad - size + 1
     offset = torch.arange(n, device=device)[None, :] - torch.arange(n_out, device=device)[:, None] + pad
     inside = (offset >= 0) & (offset < size)
     return torch.where(inside, taps[offset.clamp(0, size - 1)], torch.zeros((), dtype=dtype, device=device))
 
 
-def _blur(x: Tensor, size: int, sigma: float, pad: int) -> Tensor:  # [1, C, H, W] -> [1, C, H', W']
-    """Separable Gaussian filter as two banded matrix products (faster than depthwise conv on CPU)."""
+def blur_band(x: Tensor, size: int, sigma: float, pad: int) -> Tensor:  # [1, C, H, W] -> [1, C, H', W']
+    """Separable Gaussian filter as two banded matrix products (zero padding by ``pad``; the reference).
+
+    O(H + W) work per pixel, but the fastest pure-PyTorch form on the CPU (measured against
+    :func:`blur_conv`).
+    """
     h, w = x.shape[-2:]
     rows = _band(h, size, sigma, pad, x.dtype, x.device)
     cols = _band(w, size, sigma, pad, x.dtype, x.device)
     return rows @ x @ cols.T
 
 
-def _ssim_maps(x: Tensor, y: Tensor, size: int, sigma: float, pad: int) -> tuple[Tensor, Tensor]:  # [1, C, H', W']
+def blur_conv(x: Tensor, size: int, sigma: float, pad: int) -> Tensor:  # [1, C, H, W] -> [1, C, H', W']
+    """The same filter as two depthwise convolutions: O(size) work per pixel (the GPU's choice)."""
     c = x.shape[1]
-    moments = _blur(torch.cat([x, y, x * x, y * y, x * y], dim=1), size, sigma, pad)  # all five in one pass
+    taps = gaussian_window(size, sigma, x)
+    x = nn_f.conv2d(x, taps.view(1, 1, size, 1).expand(c, 1, size, 1), padding=(pad, 0), groups=c)
+    return nn_f.conv2d(x, taps.view(1, 1, 1, size).expand(c, 1, 1, size), padding=(0, pad), groups=c)
+
+
+Blur = Callable[[Tensor, int, float, int], Tensor]
+
+
+def _ssim_maps(
+    x: Tensor, y: Tensor, size: int, sigma: float, pad: int, blur: Blur = blur_band
+) -> tuple[Tensor, Tensor]:
+    c = x.shape[1]
+    moments = blur(torch.cat([x, y, x * x, y * y, x * y], dim=1), size, sigma, pad)  # all five in one pass
     mu_x, mu_y, exx, eyy, exy = moments.split(c, dim=1)
     sxx = exx - mu_x**2
     syy = eyy - mu_y**2
     sxy = exy - mu_x * mu_y
     cs = (2 * sxy + _C2) / (sxx + syy + _C2)
     lum = (2 * mu_x * mu_y + _C1) / (mu_x**2 + mu_y**2 + _C1)
-    return lum * cs, cs
+    return lum * cs, cs  # [1, C, H', W'] each
 
 
 def ssim(
@@ -87,13 +106,17 @@ def ssim(
     window: int = 11,
     sigma: float = 1.5,
     padding: Literal["valid", "same"] = "valid",
+    blur: Blur = blur_band,
 ) -> Tensor:
-    """Mean single-scale SSIM (Gaussian window, C1 = 0.01^2, C2 = 0.03^2); differentiable."""
+    """Mean single-scale SSIM (Gaussian window, C1 = 0.01^2, C2 = 0.03^2); differentiable.
+
+    ``blur``: :func:`blur_band` (the reference, fastest in PyTorch on the CPU) or :func:`blur_conv`.
+    """
     _check_pair(pred, gt)
     if padding == "valid" and min(pred.shape[:2]) < window:
         raise ShapeError(f"image {tuple(pred.shape[:2])} is smaller than the {window}px SSIM window")
     x, y = pred.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None]
-    ssim_map, _ = _ssim_maps(x, y, window, sigma, window // 2 if padding == "same" else 0)
+    ssim_map, _ = _ssim_maps(x, y, window, sigma, window // 2 if padding == "same" else 0, blur)
     return ssim_map.mean()
 
 
@@ -108,7 +131,7 @@ def ms_ssim(pred: Tensor, gt: Tensor, window: int = 11, sigma: float = 1.5) -> f
     if short < window:
         raise ShapeError(f"image {tuple(pred.shape[:2])} is smaller than the {window}px SSIM window")
     levels = min(5, 1 + math.floor(math.log2(short / window)))  # each level halves the image
-    weights = torch.tensor(MS_SSIM_WEIGHTS[:levels], dtype=torch.float64)
+    weights = torch.tensor(MS_SSIM_WEIGHTS[:levels], dtype=torch.float64, device=pred.device)
     weights = weights / weights.sum()
     x, y = pred.detach().float().permute(2, 0, 1)[None], gt.float().permute(2, 0, 1)[None]
     values = []

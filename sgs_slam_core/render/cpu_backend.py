@@ -1,18 +1,12 @@
 """Compiled CPU backend: binning, compositing forward and backward in C++ with OpenMP.
 
-The extension (``render/cpu/raster.cpp``) is built with ``torch.utils.cpp_extension`` on first
-use (g++ and ninja; about a minute), cached under ``TORCH_EXTENSIONS_DIR`` (default
-``~/.cache/torch_extensions``) and reused by later runs. The build targets this machine's CPU
-(``-march=native``), so the cache name carries a fingerprint of the CPU. Set ``SGS_SLAM_NO_CPP=1``
-to never build it. Importing this module builds nothing.
+The extension (``render/cpu/raster.cpp``) is built on first use and cached (:mod:`sgs_slam_core.native`:
+about a minute, keyed by the source, flags, torch and CPU). Set ``SGS_SLAM_NO_CPP=1`` to never build it.
+Importing this module builds nothing.
 """
 
 from __future__ import annotations
 
-import hashlib
-import logging
-import os
-import platform
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -20,59 +14,18 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from sgs_slam_core.errors import BackendUnavailableError
 from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.native import NativeExtension
 from sgs_slam_core.render.settings import RenderSettings
 
-__all__ = ["composite_cpu", "extension", "is_available", "render_isotropic_cpu", "unavailable_reason"]
+__all__ = ["EXTENSION", "composite_cpu", "extension", "is_available", "render_isotropic_cpu", "unavailable_reason"]
 
-log = logging.getLogger(__name__)
-_SOURCE = Path(__file__).with_name("cpu") / "raster.cpp"
-_state: dict[str, Any] = {"module": None, "error": None}
-
-
-def _cpu_fingerprint() -> str:
-    text = platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith(("flags", "model name")):
-                text += line
-    except OSError:
-        pass
-    return hashlib.sha1(text.encode()).hexdigest()[:8]
-
-
-def _build(name: str, extra_cflags: tuple[str, ...] = ()) -> ModuleType:
-    from torch.utils.cpp_extension import load  # noqa: PLC0415 - heavy, and only needed here
-
-    return load(
-        name=name,
-        sources=[str(_SOURCE)],
-        extra_cflags=["-O3", "-march=native", "-fopenmp", "-fno-math-errno", "-fno-trapping-math", *extra_cflags],
-        extra_ldflags=["-fopenmp"],
-        verbose=bool(os.environ.get("SGS_SLAM_VERBOSE_BUILD")),
-    )
+EXTENSION = NativeExtension("render", Path(__file__).with_name("cpu") / "raster.cpp", "the CPU renderer")
 
 
 def extension() -> ModuleType:
     """The compiled module, building it on first call; raises :class:`BackendUnavailableError`."""
-    if _state["module"] is not None:
-        return _state["module"]
-    if _state["error"] is not None:
-        raise BackendUnavailableError(_state["error"])
-    if os.environ.get("SGS_SLAM_NO_CPP"):
-        _state["error"] = "the compiled CPU backend is disabled by SGS_SLAM_NO_CPP"
-        raise BackendUnavailableError(_state["error"])
-    try:
-        log.info("building the compiled CPU renderer (first use on this machine, about a minute)")
-        _state["module"] = _build(f"sgs_slam_cpu_render_{_cpu_fingerprint()}")
-    except Exception as err:
-        _state["error"] = (
-            f"cannot build the compiled CPU renderer ({type(err).__name__}: {str(err).splitlines()[0][:300]}); "
-            "it needs g++ and ninja (pip install ninja); falling back to the torch backend"
-        )
-        raise BackendUnavailableError(_state["error"]) from err
-    return _state["module"]
+    return EXTENSION.module()
 
 
 def build_variant(tag: str, extra_cflags: tuple[str, ...]) -> ModuleType:
@@ -81,21 +34,17 @@ def build_variant(tag: str, extra_cflags: tuple[str, ...]) -> ModuleType:
     For tests of the code paths other CPUs take, e.g. ``("-mno-avx512f",)`` for the AVX2 build on
     an AVX-512 machine; :func:`extension` is unaffected. Raises what the build raises.
     """
-    return _build(f"sgs_slam_cpu_render_{_cpu_fingerprint()}_{tag}", extra_cflags)
+    return EXTENSION.variant(tag, extra_cflags)
 
 
 def is_available() -> bool:
     """True when the extension is (or can be) built; the first call may take a minute."""
-    try:
-        extension()
-    except BackendUnavailableError:
-        return False
-    return True
+    return EXTENSION.is_available()
 
 
 def unavailable_reason() -> str:
     """Why the backend is unavailable (empty when it works or was never tried)."""
-    return _state["error"] or ""
+    return EXTENSION.unavailable_reason()
 
 
 def _grads(grad_out: tuple[Tensor | None, ...]) -> tuple[list[Tensor | None], Tensor | None]:

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from sgs_slam_core.metrics.image import ssim
 from sgs_slam_core.render.api import RenderOutput
 from sgs_slam_core.slam.frame_data import FrameTensors
+from sgs_slam_core.slam.photometric import photometric_loss
 from sgs_slam_core.slam.settings import MappingSettings, TrackingSettings
 
 __all__ = ["TrackingLoss", "mapping_loss", "tracking_loss", "tracking_mask"]
@@ -47,15 +47,6 @@ def tracking_loss(out: RenderOutput, frame: FrameTensors, s: TrackingSettings, u
     return TrackingLoss(total, pixels, residual)
 
 
-def _photometric(pred: Tensor, target: Tensor, ignore: Tensor | None, ssim_weight: float) -> Tensor:
-    if ignore is not None:  # ignored pixels match the prediction: no L1 error and no gradient there
-        target = torch.where(ignore[..., None], pred.detach(), target)
-    loss = (pred - target).abs().mean()
-    if ssim_weight > 0:
-        loss = (1 - ssim_weight) * loss + ssim_weight * (1 - ssim(pred, target, padding="same"))
-    return loss
-
-
 def mapping_loss(out: RenderOutput, frame: FrameTensors, s: MappingSettings, use_semantics: bool) -> Tensor:
     """w_d mean|D - D_gt| (valid depth) + w_c [(1-a) L1 + a (1 - SSIM)](C) + w_s [same](S).
 
@@ -64,7 +55,7 @@ def mapping_loss(out: RenderOutput, frame: FrameTensors, s: MappingSettings, use
     valid = frame.valid & torch.isfinite(out.depth)
     depth_err = torch.where(valid, out.depth - frame.depth, 0.0).abs().sum() / valid.sum().clamp(min=1)
     loss = s.weight_depth * depth_err
-    loss = loss + s.weight_color * _photometric(out.color, frame.rgb, frame.ignore, s.ssim_weight)
+    loss = loss + s.weight_color * photometric_loss(out.color, frame.rgb, frame.ignore, s.ssim_weight)
     if use_semantics and frame.semantic is not None and s.weight_semantic > 0:
-        loss = loss + s.weight_semantic * _photometric(out.semantic, frame.semantic, frame.ignore, s.ssim_weight)
+        loss = loss + s.weight_semantic * photometric_loss(out.semantic, frame.semantic, frame.ignore, s.ssim_weight)
     return loss

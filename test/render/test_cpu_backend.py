@@ -123,8 +123,8 @@ def test_deterministic_across_runs_and_thread_counts():
 
 def test_auto_picks_the_compiled_backend_and_falls_back_with_a_reason(monkeypatch):
     assert resolve_backend("auto", torch.device("cpu")) == "cpu"
-    monkeypatch.setitem(cpu_backend._state, "module", None)
-    monkeypatch.setitem(cpu_backend._state, "error", None)
+    monkeypatch.setattr(cpu_backend.EXTENSION, "_module", None)
+    monkeypatch.setattr(cpu_backend.EXTENSION, "_error", None)
     monkeypatch.setenv("SGS_SLAM_NO_CPP", "1")
     assert resolve_backend("auto", torch.device("cpu")) == "torch"
     with pytest.raises(BackendUnavailableError, match="SGS_SLAM_NO_CPP"):
@@ -175,7 +175,7 @@ def test_the_build_without_avx512_matches_the_reference(monkeypatch):
     """The paths of CPUs without AVX-512 (8-lane packs, 16 px tiles, portable exp and sums)."""
     ext = cpu_backend.build_variant("noavx512", ("-mno-avx512f",))
     assert ext.max_tile(False) == 16 and ext.max_tile(True) == 16
-    monkeypatch.setitem(cpu_backend._state, "module", ext)
+    monkeypatch.setattr(cpu_backend.EXTENSION, "_module", ext)
     assert_parity(1500, 97, 61, seed=32, scene={"behind": 100})
 
 

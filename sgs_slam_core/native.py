@@ -1,0 +1,138 @@
+"""Compiled CPU kernels, built on first use with ``torch.utils.cpp_extension`` (g++ and ninja).
+
+Each :class:`NativeExtension` is one C++ source built into its own module the first time it is
+needed (30-60 s each on 2 cores), cached under ``TORCH_EXTENSIONS_DIR`` (default
+``~/.cache/torch_extensions``) and loaded from there by later runs. The cache name carries a
+fingerprint of the source text, the compiler flags, the torch version and the CPU (builds target
+``-march=native``): two checkouts with different sources never rebuild each other's cache, and an
+edited source never loads a stale build. ``SGS_SLAM_NO_CPP=1`` disables every build (the callers
+fall back to their pure-PyTorch references). Importing this module builds nothing.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import platform
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from types import ModuleType
+
+import torch
+
+from sgs_slam_core.errors import BackendUnavailableError
+
+__all__ = ["NativeExtension", "prepare"]
+
+log = logging.getLogger(__name__)
+
+_CFLAGS = ("-O3", "-march=native", "-fopenmp", "-fno-math-errno", "-fno-trapping-math")
+
+
+def _cpu_fingerprint() -> str:
+    text = platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith(("flags", "model name")):
+                text += line
+                if len(text) > 4096:
+                    break
+    except OSError:
+        pass
+    return text
+
+
+class NativeExtension:
+    """One C++ source file built lazily into an importable module.
+
+    ``stem``: short name in the cache (e.g. ``render``); ``what``: how the console names it
+    (e.g. "the CPU renderer").
+    """
+
+    def __init__(self, stem: str, source: Path, what: str) -> None:
+        self.stem, self.source, self.what = stem, source, what
+        self._module: ModuleType | None = None
+        self._error: str | None = None
+
+    def cache_name(self, extra_cflags: tuple[str, ...] = ()) -> str:
+        """The build's name under ``TORCH_EXTENSIONS_DIR``: stem and a fingerprint of what it depends on."""
+        digest = hashlib.sha1()
+        for part in (self.source.read_bytes(), " ".join((*_CFLAGS, *extra_cflags)).encode(),
+                     torch.__version__.encode(), _cpu_fingerprint().encode()):  # fmt: skip
+            digest.update(part)
+        return f"sgs_slam_{self.stem}_{digest.hexdigest()[:12]}"
+
+    def is_cached(self) -> bool:
+        """True when a build for this source, flags, torch and CPU is already on disk (or loaded)."""
+        if self._module is not None:
+            return True
+        from torch.utils.cpp_extension import _get_build_directory  # noqa: PLC0415 - heavy, and only needed here
+
+        name = self.cache_name()
+        return (Path(_get_build_directory(name, verbose=False)) / f"{name}.so").is_file()
+
+    def module(self) -> ModuleType:
+        """The compiled module, building it on first call; raises :class:`BackendUnavailableError`."""
+        if self._module is not None:
+            return self._module
+        if self._error is not None:
+            raise BackendUnavailableError(self._error)
+        if os.environ.get("SGS_SLAM_NO_CPP"):
+            self._error = f"{self.what} (compiled) is disabled by SGS_SLAM_NO_CPP"
+            raise BackendUnavailableError(self._error)
+        try:
+            self._module = self._build(self.cache_name(), ())
+        except Exception as err:
+            self._error = (
+                f"cannot build {self.what} ({type(err).__name__}: {str(err).splitlines()[0][:300]}); "
+                "it needs g++ and ninja (pip install ninja); falling back to the PyTorch reference"
+            )
+            raise BackendUnavailableError(self._error) from err
+        return self._module
+
+    def variant(self, tag: str, extra_cflags: tuple[str, ...]) -> ModuleType:
+        """The same source built with extra compiler flags under its own cache name.
+
+        For tests of the code paths other CPUs take, e.g. ``("-mno-avx512f",)`` for the AVX2 build on
+        an AVX-512 machine; :meth:`module` is unaffected. Raises what the build raises.
+        """
+        return self._build(f"{self.cache_name(extra_cflags)}_{tag}", extra_cflags)
+
+    def is_available(self) -> bool:
+        """True when the module is (or can be) built; the first call may take a minute."""
+        try:
+            self.module()
+        except BackendUnavailableError:
+            return False
+        return True
+
+    def unavailable_reason(self) -> str:
+        """Why the module is unavailable (empty when it works or was never tried)."""
+        return self._error or ""
+
+    def _build(self, name: str, extra_cflags: tuple[str, ...]) -> ModuleType:
+        from torch.utils.cpp_extension import load  # noqa: PLC0415 - heavy, and only needed here
+
+        return load(
+            name=name,
+            sources=[str(self.source)],
+            extra_cflags=[*_CFLAGS, *extra_cflags],
+            extra_ldflags=["-fopenmp"],
+            verbose=bool(os.environ.get("SGS_SLAM_VERBOSE_BUILD")),
+        )
+
+
+def prepare(extensions: Iterable[NativeExtension], announce: Callable[[str], None]) -> None:
+    """Load (building where needed) every extension now, before anything is timed.
+
+    ``announce`` gets one line per extension that has to be compiled (e.g. "building the CPU renderer
+    (once, ~1 min)"); a failed build is left to the caller's fallback (it is remembered and warned
+    about where the extension is used).
+    """
+    for ext in extensions:
+        if os.environ.get("SGS_SLAM_NO_CPP"):
+            return
+        if not ext.is_cached():
+            announce(f"building {ext.what} (once per machine and version, ~1 min)")
+        ext.is_available()

@@ -1,0 +1,1 @@
+"""C++ source of the fused photometric loss (built on first use by ``slam.photometric``)."""

@@ -1,0 +1,240 @@
+// Fused photometric term of the mapping loss on the CPU: loss and gradient in one call.
+//
+//   L = (1 - w) mean|x - y| + w (1 - mean SSIM(x, y))
+//
+// Same maths as sgs_slam_core/slam/photometric.py's reference (metrics/image.py `ssim` with
+// padding="same"): x, y are [H, W, C] images (channels last), SSIM uses a normalised Gaussian window
+// of `size` taps, zero padding ("same" output), C1 = 0.01^2, C2 = 0.03^2:
+//   mu = blur(x), E_xx = blur(x^2), E_xy = blur(x y), ...
+//   A1 = 2 mu_x mu_y + C1, A2 = 2 (E_xy - mu_x mu_y) + C2, B1 = mu_x^2 + mu_y^2 + C1,
+//   B2 = (E_xx - mu_x^2) + (E_yy - mu_y^2) + C2, S = A1 A2 / (B1 B2)
+// y is a constant target. The loss is a scalar, so its gradient with respect to x is computed here
+// (when asked) and the autograd backward only scales it:
+//   dS/dmu_x = 2 mu_y (A2 - A1) / (B1 B2) - 2 mu_x S (1/B1 - 1/B2),  dS/dE_xx = -S / B2,
+//   dS/dE_xy = 2 A1 / (B1 B2)
+//   dL/dx = -(w/n) [blur(dS/dmu_x) + 2 x blur(dS/dE_xx) + y blur(dS/dE_xy)] + ((1 - w)/n) sign(x - y)
+// (a zero-padded "same" blur with a symmetric window is its own transpose).
+//
+// The blur is separable: per output row, a vertical pass accumulates the window's rows into
+// zero-padded row buffers, then a horizontal pass reads them at offsets of C. Both inner loops run
+// over the row's W*C values (vectorised by the compiler). OpenMP over rows; per-row partial sums are
+// added in row order, so the result does not depend on the thread count.
+
+#include <torch/extension.h>
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+namespace {
+
+constexpr double kC1 = 0.01 * 0.01;
+constexpr double kC2 = 0.03 * 0.03;
+
+template <typename T>
+std::vector<T> gaussian_taps(int size, double sigma) {
+  std::vector<double> g(size);
+  double sum = 0.0;
+  for (int i = 0; i < size; ++i) {
+    const double x = i - (size - 1) / 2.0;
+    g[i] = std::exp(-(x * x) / (2.0 * sigma * sigma));
+    sum += g[i];
+  }
+  std::vector<T> taps(size);
+  for (int i = 0; i < size; ++i) taps[i] = static_cast<T>(g[i] / sum);
+  return taps;
+}
+
+// out[k][j] = sum_t taps[t] * pad[k][j + t*C] for the K row buffers (zero-padded by half*C each side).
+template <typename T, int K>
+inline void horizontal(T* const* pad, T* const* out, const std::vector<T>& taps, int64_t len, int64_t c) {
+  for (int k = 0; k < K; ++k) {
+    T* __restrict o = out[k];
+    const T* __restrict p = pad[k];
+    for (int64_t j = 0; j < len; ++j) o[j] = 0;
+    for (size_t t = 0; t < taps.size(); ++t) {
+      const T g = taps[t];
+      const T* __restrict q = p + static_cast<int64_t>(t) * c;
+      for (int64_t j = 0; j < len; ++j) o[j] += g * q[j];
+    }
+  }
+}
+
+template <typename T>
+struct Images {
+  const T* x;
+  const T* y;
+  int64_t h, w, c;
+  int64_t row() const { return w * c; }
+};
+
+// Pass 1: SSIM per value, the partial sums of S and |x - y| per row, and (with grad) the three
+// derivative maps dS/dmu_x, dS/dE_xx, dS/dE_xy.
+template <typename T>
+void ssim_pass(const Images<T>& im, const std::vector<T>& taps, bool grad, std::vector<double>& row_s,
+               std::vector<double>& row_l1, T* d_mu, T* d_xx, T* d_xy, int threads) {
+  const int64_t len = im.row(), half = static_cast<int64_t>(taps.size() / 2), off = half * im.c;
+  const int64_t padded = len + 2 * off;
+#pragma omp parallel num_threads(threads)
+  {
+    std::vector<T> buf(5 * padded + 5 * len);
+    T* pad[5];
+    T* mom[5];
+    for (int k = 0; k < 5; ++k) {
+      pad[k] = buf.data() + k * padded;
+      mom[k] = buf.data() + 5 * padded + k * len;
+    }
+#pragma omp for schedule(static)
+    for (int64_t h = 0; h < im.h; ++h) {
+      std::fill(buf.begin(), buf.begin() + 5 * padded, T(0));
+      for (int64_t t = -half; t <= half; ++t) {
+        const int64_t r = h + t;
+        if (r < 0 || r >= im.h) continue;
+        const T g = taps[t + half];
+        const T* __restrict xr = im.x + r * len;
+        const T* __restrict yr = im.y + r * len;
+        T* __restrict p0 = pad[0] + off;
+        T* __restrict p1 = pad[1] + off;
+        T* __restrict p2 = pad[2] + off;
+        T* __restrict p3 = pad[3] + off;
+        T* __restrict p4 = pad[4] + off;
+        for (int64_t j = 0; j < len; ++j) {
+          const T a = xr[j], b = yr[j];
+          p0[j] += g * a;
+          p1[j] += g * b;
+          p2[j] += g * a * a;
+          p3[j] += g * b * b;
+          p4[j] += g * a * b;
+        }
+      }
+      horizontal<T, 5>(pad, mom, taps, len, im.c);
+      const T* xr = im.x + h * len;
+      const T* yr = im.y + h * len;
+      double sum_s = 0.0, sum_l1 = 0.0;
+      for (int64_t j = 0; j < len; ++j) {
+        const T mx = mom[0][j], my = mom[1][j];
+        const T a1 = 2 * mx * my + T(kC1);
+        const T a2 = 2 * (mom[4][j] - mx * my) + T(kC2);
+        const T b1 = mx * mx + my * my + T(kC1);
+        const T b2 = (mom[2][j] - mx * mx) + (mom[3][j] - my * my) + T(kC2);
+        const T inv = T(1) / (b1 * b2);
+        const T s = a1 * a2 * inv;
+        sum_s += s;
+        sum_l1 += std::abs(xr[j] - yr[j]);
+        if (grad) {
+          d_mu[h * len + j] = 2 * my * (a2 - a1) * inv - 2 * mx * s * (T(1) / b1 - T(1) / b2);
+          d_xx[h * len + j] = -s / b2;
+          d_xy[h * len + j] = 2 * a1 * inv;
+        }
+      }
+      row_s[h] = sum_s;
+      row_l1[h] = sum_l1;
+    }
+  }
+}
+
+// Pass 2: blur the derivative maps and assemble dL/dx.
+template <typename T>
+void gradient_pass(const Images<T>& im, const std::vector<T>& taps, const T* d_mu, const T* d_xx, const T* d_xy,
+                   T scale_ssim, T scale_l1, T* out, int threads) {
+  const int64_t len = im.row(), half = static_cast<int64_t>(taps.size() / 2), off = half * im.c;
+  const int64_t padded = len + 2 * off;
+  const T* maps[3] = {d_mu, d_xx, d_xy};
+#pragma omp parallel num_threads(threads)
+  {
+    std::vector<T> buf(3 * padded + 3 * len);
+    T* pad[3];
+    T* blurred[3];
+    for (int k = 0; k < 3; ++k) {
+      pad[k] = buf.data() + k * padded;
+      blurred[k] = buf.data() + 3 * padded + k * len;
+    }
+#pragma omp for schedule(static)
+    for (int64_t h = 0; h < im.h; ++h) {
+      std::fill(buf.begin(), buf.begin() + 3 * padded, T(0));
+      for (int64_t t = -half; t <= half; ++t) {
+        const int64_t r = h + t;
+        if (r < 0 || r >= im.h) continue;
+        const T g = taps[t + half];
+        for (int k = 0; k < 3; ++k) {
+          const T* __restrict src = maps[k] + r * len;
+          T* __restrict dst = pad[k] + off;
+          for (int64_t j = 0; j < len; ++j) dst[j] += g * src[j];
+        }
+      }
+      horizontal<T, 3>(pad, blurred, taps, len, im.c);
+      const T* __restrict xr = im.x + h * len;
+      const T* __restrict yr = im.y + h * len;
+      T* __restrict o = out + h * len;
+      for (int64_t j = 0; j < len; ++j) {
+        const T diff = xr[j] - yr[j];
+        const T sign = static_cast<T>((diff > 0) - (diff < 0));
+        o[j] = scale_ssim * (blurred[0][j] + 2 * xr[j] * blurred[1][j] + yr[j] * blurred[2][j]) + scale_l1 * sign;
+      }
+    }
+  }
+}
+
+}  // namespace
+
+// (loss [], gradient [H, W, C] or an empty tensor) of (1 - w) mean|x - y| + w (1 - mean SSIM).
+std::vector<torch::Tensor> photometric_loss(torch::Tensor pred, torch::Tensor target, double ssim_weight,
+                                            int64_t window, double sigma, bool need_grad, int64_t threads) {
+  TORCH_CHECK(pred.dim() == 3 && pred.sizes() == target.sizes(), "pred and target must both be [H, W, C]");
+  TORCH_CHECK(pred.scalar_type() == target.scalar_type(), "pred and target must share a dtype");
+  TORCH_CHECK(window >= 1 && window % 2 == 1 && window <= 63, "window must be odd, 1..63");
+  pred = pred.contiguous();
+  target = target.contiguous();
+  const int64_t h = pred.size(0), w = pred.size(1), c = pred.size(2), n = pred.numel();
+  auto loss = torch::zeros({}, pred.options());
+  torch::Tensor grad = need_grad ? torch::empty_like(pred) : torch::empty({0}, pred.options());
+  if (n == 0) return {loss, grad};
+  AT_DISPATCH_FLOATING_TYPES(pred.scalar_type(), "photometric_loss", [&] {
+    using T = scalar_t;
+    const Images<T> im{pred.data_ptr<T>(), target.data_ptr<T>(), h, w, c};
+    const auto taps = gaussian_taps<T>(static_cast<int>(window), sigma);
+    std::vector<double> row_s(h, 0.0), row_l1(h, 0.0);
+    const bool ssim = ssim_weight > 0;
+    torch::Tensor maps = (ssim && need_grad) ? torch::empty({3, h, w, c}, pred.options()) : torch::Tensor();
+    T* d = maps.defined() ? maps.data_ptr<T>() : nullptr;
+    if (ssim) {
+      ssim_pass<T>(im, taps, need_grad, row_s, row_l1, d, d ? d + n : nullptr, d ? d + 2 * n : nullptr,
+                   static_cast<int>(threads));
+    } else {
+      for (int64_t r = 0; r < h; ++r) {
+        double s = 0.0;
+        for (int64_t j = 0; j < w * c; ++j) s += std::abs(im.x[r * w * c + j] - im.y[r * w * c + j]);
+        row_l1[r] = s;
+      }
+    }
+    double sum_s = 0.0, sum_l1 = 0.0;
+    for (int64_t r = 0; r < h; ++r) {
+      sum_s += row_s[r];
+      sum_l1 += row_l1[r];
+    }
+    const double mean_s = sum_s / n, mean_l1 = sum_l1 / n;
+    loss.fill_((1.0 - ssim_weight) * mean_l1 + (ssim ? ssim_weight * (1.0 - mean_s) : 0.0));
+    if (need_grad) {
+      const T scale_l1 = static_cast<T>((1.0 - ssim_weight) / n);
+      if (ssim) {
+        gradient_pass<T>(im, taps, d, d + n, d + 2 * n, static_cast<T>(-ssim_weight / n), scale_l1,
+                         grad.data_ptr<T>(), static_cast<int>(threads));
+      } else {
+        T* g = grad.data_ptr<T>();
+        for (int64_t j = 0; j < n; ++j) {
+          const T diff = im.x[j] - im.y[j];
+          g[j] = scale_l1 * static_cast<T>((diff > 0) - (diff < 0));
+        }
+      }
+    }
+  });
+  return {loss, grad};
+}
+
+// The GIL is released while the kernel runs, so tracking and mapping threads overlap.
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("photometric_loss", &photometric_loss, py::call_guard<py::gil_scoped_release>(),
+        "(1 - w) L1 + w (1 - SSIM) of [H, W, C] images and its gradient");
+}

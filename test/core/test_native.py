@@ -1,0 +1,22 @@
+"""The compiled extensions' cache names: one per source text, flags, torch and CPU."""
+
+from sgs_slam_core.native import NativeExtension
+
+
+def test_cache_name_follows_the_source_and_the_flags(tmp_path):
+    src = tmp_path / "k.cpp"
+    src.write_text("// one\n")
+    ext = NativeExtension("k", src, "a kernel")
+    first = ext.cache_name()
+    assert first.startswith("sgs_slam_k_") and first == ext.cache_name()
+    assert ext.cache_name(("-mno-avx512f",)) != first
+    src.write_text("// two\n")  # another checkout's source, or an edit: never the old build
+    assert ext.cache_name() != first
+
+
+def test_a_disabled_build_explains_itself(tmp_path, monkeypatch):
+    monkeypatch.setenv("SGS_SLAM_NO_CPP", "1")
+    src = tmp_path / "k.cpp"
+    src.write_text("// never built\n")
+    ext = NativeExtension("k", src, "a kernel")
+    assert not ext.is_available() and "SGS_SLAM_NO_CPP" in ext.unavailable_reason()
