@@ -146,7 +146,7 @@ def gaussians_from_cloud(arr: np.ndarray, device: torch.device | str = "cpu") ->
             log_scales=col("scale") if isotropic else col("scale_0", "scale_1", "scale_2"),
             logit_opacities=torch.from_numpy(np.asarray(arr["opacity"], dtype=np.float32).copy()),
             colors=col("r", "g", "b"),
-            semantics=col(*sem_keys) if sem_keys else torch.zeros(n, 0),
+            semantics=col(*sem_keys) if sem_keys else torch.zeros(n, 0, device="cpu"),
             labels=torch.from_numpy(np.asarray(arr["label"], dtype=np.int64)),
             birth_frame=torch.from_numpy(np.asarray(arr["birth_frame"], dtype=np.int64)),
             quats=None if isotropic else col("rot_0", "rot_1", "rot_2", "rot_3"),

@@ -6,19 +6,22 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from sgs_slam_core.cli import demo, edit, evaluate, export, map_labels, render_views, run, synth
 from sgs_slam_core.errors import SgsSlamError
 
 __all__ = ["main", "run_command"]
 
-_COMMANDS = (run, evaluate, synth, demo, edit, render_views, map_labels, export)
-
 
 def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with one sub-command per module in this package."""
+    """The top-level parser with one sub-command per module in this package.
+
+    The command modules are imported here, not at package import, so library modules may use
+    ``sgs_slam_core.cli.progress`` without importing every command (and the runner with them).
+    """
+    from sgs_slam_core.cli import demo, edit, evaluate, export, map_labels, render_views, run, synth  # noqa: PLC0415
+
     parser = argparse.ArgumentParser(prog="sgs-slam", description="Semantic Gaussian-splatting SLAM, offline tools.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for module in _COMMANDS:
+    for module in (run, evaluate, synth, demo, edit, render_views, map_labels, export):
         module.add_parser(sub)
     return parser
 

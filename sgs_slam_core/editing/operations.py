@@ -79,7 +79,7 @@ def euler_deg_to_matrix(rx: float, ry: float, rz: float) -> np.ndarray:  # [3, 3
     """Rotation R = Rz(rz) Ry(ry) Rx(rx) from angles in degrees about the world x, y, z axes."""
 
     def axis(a: int, deg: float) -> torch.Tensor:
-        v = torch.zeros(3, dtype=torch.float64)
+        v = torch.zeros(3, dtype=torch.float64, device="cpu")
         v[a] = math.radians(deg)
         return so3_exp(v)
 

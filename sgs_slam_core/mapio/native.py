@@ -80,6 +80,10 @@ def _keyframe_from_dict(d: dict[str, Any], k: Intrinsics | None) -> CompactFrame
     return CompactFrame(int(d["index"]), int(d["stamp_ns"]), k, rgb, depth, labels, d["w2c"].numpy())
 
 
+def _host(pose: np.ndarray) -> torch.Tensor:  # [4, 4] float64 on the CPU (files hold host tensors)
+    return torch.as_tensor(pose, dtype=torch.float64, device="cpu")
+
+
 def save_map(path: str | Path, m: MapFile) -> None:
     """Write ``m`` to ``path`` atomically (a crash leaves any previous file intact)."""
     payload = {
@@ -89,8 +93,8 @@ def save_map(path: str | Path, m: MapFile) -> None:
         "label_table": m.label_table.to_dict(),
         "config": m.config,
         "intrinsics": _intrinsics_dict(m.intrinsics),
-        "keyframes": [[int(i), torch.as_tensor(p, dtype=torch.float64)] for i, p in m.keyframes],
-        "trajectory": [[int(i), int(s), torch.as_tensor(p, dtype=torch.float64)] for i, s, p in m.trajectory],
+        "keyframes": [[int(i), _host(p)] for i, p in m.keyframes],
+        "trajectory": [[int(i), int(s), _host(p)] for i, s, p in m.trajectory],
         "seen_labels": [int(i) for i in m.seen_labels],
         "scene_radius": m.scene_radius,
         "locked_labels": [int(i) for i in m.locked_labels],

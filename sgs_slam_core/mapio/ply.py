@@ -125,9 +125,9 @@ def read_splat_ply(path: str | Path) -> tuple[GaussianMap, LabelTable | None]:
     elif {"f_dc_0", "f_dc_1", "f_dc_2"} <= names:
         colors = col("f_dc_0", "f_dc_1", "f_dc_2") * SH_C0 + 0.5
     else:
-        colors = torch.full((n, 3), 0.5)
+        colors = torch.full((n, 3), 0.5, device="cpu")
     sem_keys = sorted((k for k in names if k.startswith("sem_")), key=lambda k: int(k[4:]))
-    semantics = col(*sem_keys) if sem_keys else torch.zeros(n, 0)
+    semantics = col(*sem_keys) if sem_keys else torch.zeros(n, 0, device="cpu")
     scales = col("scale_0", "scale_1", "scale_2")
     return GaussianMap(
         means=col("x", "y", "z"),
@@ -137,10 +137,10 @@ def read_splat_ply(path: str | Path) -> tuple[GaussianMap, LabelTable | None]:
         semantics=semantics,
         labels=torch.from_numpy(data["label"].astype(np.int64))
         if "label" in names
-        else torch.zeros(n, dtype=torch.long),
+        else torch.zeros(n, dtype=torch.long, device="cpu"),
         birth_frame=torch.from_numpy(data["birth_frame"].astype(np.int64))
         if "birth_frame" in names
-        else torch.zeros(n, dtype=torch.long),
+        else torch.zeros(n, dtype=torch.long, device="cpu"),
         quats=None if isotropic else col("rot_0", "rot_1", "rot_2", "rot_3"),
     ), table
 

@@ -49,7 +49,8 @@ def gaussians_from_pixels(
     points, valid = backproject(depth, k, c2w)
     idx = torch.nonzero(valid.reshape(-1)).squeeze(1)
     if settings.max_new_per_frame is not None and idx.numel() > settings.max_new_per_frame:
-        pick = torch.randperm(idx.numel(), generator=generator)[: settings.max_new_per_frame].to(idx.device)
+        on = generator.device if generator is not None else idx.device  # the generator's device decides the draw
+        pick = torch.randperm(idx.numel(), generator=generator, device=on)[: settings.max_new_per_frame].to(idx.device)
         idx, points = idx[pick], points[pick]
     n = idx.numel()
     device, dtype = frame.rgb.device, frame.rgb.dtype

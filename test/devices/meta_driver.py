@@ -1,0 +1,127 @@
+"""Every CLI path and the SLAM nodes with ``torch.set_default_device("meta")`` set first.
+
+A tensor made without naming the caller's device lands on ``meta``; the first operation mixing it
+with a real tensor fails (on a GPU the same bug mixes CPU and CUDA tensors). Run by
+``test_meta_device.py`` in its own interpreter (the default device is process-wide):
+
+    python -m test.devices.meta_driver WORK_DIR
+
+Prints one line per step and exits 1 at the first step that fails.
+"""
+
+from __future__ import annotations
+
+import sys
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+
+torch.set_default_device("meta")  # before anything of the project runs
+
+FAST = ["--set", "tracking.iterations=6", "--set", "mapping.iterations=4", "--quiet"]
+
+
+def cli(*args: str) -> Callable[[], None]:
+    def step() -> None:
+        from sgs_slam_core.cli import main
+
+        rc = main(list(args))
+        if rc != 0:
+            raise RuntimeError(f"sgs-slam {' '.join(args)} exited {rc}")
+
+    return step
+
+
+def bag_convert(scene: Path, bag: Path) -> Callable[[], None]:
+    def step() -> None:
+        from bags.cli import main
+
+        if main(["convert", str(scene), "--out", str(bag)]) != 0:
+            raise RuntimeError("sgs-slam-bag convert failed")
+
+    return step
+
+
+def nodes(scene: Path, work: Path) -> Callable[[], None]:
+    """slam_node in-process: a few lockstep frames, every output published, the map saved."""
+
+    def step() -> None:
+        import dataclasses
+
+        import numpy as np
+
+        from sgs_slam_core.datasets import open_dataset
+        from sgs_slam_ros.slam_node import build_slam_nodes
+        from test.ros.helpers import Feeder, Spinner, new_context, node_params, wait_for
+
+        ds = open_dataset(scene)
+        frames = [dataclasses.replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32))
+                  for i in range(4)]  # fmt: skip
+        ctx = new_context()
+        built = build_slam_nodes(context=ctx, parameter_overrides=node_params(map_path=str(work / "node.sgsmap")))
+        feeder = Feeder(ctx)
+        spinner = Spinner(ctx, [*built, feeder])
+        try:
+            if not wait_for(feeder.connected, 10.0):
+                raise RuntimeError("slam_node did not subscribe")
+            for f in frames:
+                feeder.publish(f)
+                if not wait_for(lambda f=f: f.stamp_ns in feeder.poses, 60.0):
+                    raise RuntimeError(f"no pose for frame {f.index} (see the node's log above)")
+            mapping = built[1]
+            if not mapping.pipeline.wait_idle(30.0) or mapping.pipeline.stats.errors:
+                raise RuntimeError(f"pipeline errors: {mapping.pipeline.stats.last_error}")
+            mapping.publish_renders()
+            mapping.publish_points()
+            mapping.publish_gaussians()
+            from std_srvs.srv import Trigger
+
+            response = mapping._save_map(Trigger.Request(), Trigger.Response())
+            if not response.success:
+                raise RuntimeError(response.message)
+        finally:
+            spinner.stop()
+            for n in [*built, feeder]:
+                getattr(n, "close", lambda: None)()
+                n.destroy_node()
+            ctx.try_shutdown()
+
+    return step
+
+
+def main(work: Path) -> int:
+    scene, run, bag = work / "tiny", work / "run", work / "bag"
+    steps: list[tuple[str, Callable[[], None]]] = [
+        ("synth", cli("synth", str(scene), "--preset", "tiny")),
+        ("run (lockstep)", cli("run", str(scene), "--out", str(run), *FAST)),
+        ("run (torch renderer)", cli("run", str(scene), "--out", str(work / "run_torch"), "--max-frames", "4", *FAST,
+                                     "--set", "render.backend=torch")),
+        ("run --realtime", cli("run", str(scene), "--out", str(work / "run_rt"), "--realtime", "30", *FAST)),
+        ("eval", cli("eval", str(run), "--no-write")),
+        ("labels", cli("labels", str(run / "map.sgsmap"))),
+        ("edit remove", cli("edit", str(run / "map.sgsmap"), "--remove-label", "chair", "--out",
+                            str(work / "e.sgsmap"))),
+        ("edit move", cli("edit", str(run / "map.sgsmap"), "--move-label", "table", "--translate", "0.2", "0", "0",
+                          "--rotate-deg", "0", "0", "10", "--out", str(work / "m.sgsmap"))),
+        ("render", cli("render", str(work / "m.sgsmap"), "--orbit", "2", "--semantic", "--out", str(work / "orbit"))),
+        ("export ply", cli("export", str(run / "map.sgsmap"), "--out", str(work / "map.ply"))),
+        ("export points", cli("export", str(run / "map.sgsmap"), "--points", "--semantic", "--out",
+                              str(work / "p.ply"))),
+        ("bag convert", bag_convert(scene, bag)),
+        ("run bag", cli("run", str(bag), "--out", str(work / "run_bag"), "--max-frames", "4", *FAST)),
+        ("slam_node", nodes(scene, work)),
+    ]  # fmt: skip
+    for name, step in steps:
+        try:
+            step()
+        except BaseException:
+            print(f"FAILED: {name}\n{traceback.format_exc()}", flush=True)
+            return 1
+        print(f"ok: {name}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(Path(sys.argv[1])))
