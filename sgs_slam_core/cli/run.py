@@ -11,8 +11,9 @@ from sgs_slam_core.datasets import FORMATS, Dataset, DatasetOptions, detect_form
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.runner import format_table, run_offline
 from sgs_slam_core.runner.offline import check_run_dir
+from sgs_slam_core.runner.realtime import RealtimeOptions
 
-__all__ = ["add_parser", "default_preset", "open_input", "parse_topics", "run"]
+__all__ = ["add_parser", "camera_rate", "default_preset", "open_input", "parse_topics", "run"]
 
 TOPIC_KEYS = ("color", "camera_info", "depth", "semantic", "pose")
 
@@ -35,7 +36,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True, help="run folder (must be empty unless --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty run folder")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--realtime", nargs="?", const="stamps", type=camera_rate, metavar="HZ",
+                   help="replay as a live camera: frames released at their recorded stamps (or HZ per second), "
+                   "dropped while tracking is busy; mapping runs beside it (default: lockstep)")  # fmt: skip
     p.set_defaults(func=run)
+
+
+def camera_rate(text: str) -> float | str:
+    """``--realtime`` value: a rate in Hz (0.1-1000), or ``stamps`` for the recorded time stamps."""
+    if text == "stamps":
+        return text
+    try:
+        hz = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a rate in Hz, got {text!r}") from None
+    if not 0.1 <= hz <= 1000:
+        raise argparse.ArgumentTypeError(f"rate must be in [0.1, 1000] Hz, got {hz:g}")
+    return hz
 
 
 def add_dataset_arguments(p: argparse.ArgumentParser) -> None:
@@ -107,8 +124,11 @@ def run(args: argparse.Namespace) -> int:
         "config_file": str(args.config) if args.config else None,
         "overrides": overrides,
         "command": " ".join(sys.argv),
+        "realtime": args.realtime,
     }
-    result = run_offline(dataset, config, args.out, args.overwrite, provenance, show_progress=not args.quiet)
+    realtime = None if args.realtime is None else RealtimeOptions(None if args.realtime == "stamps" else args.realtime)
+    result = run_offline(dataset, config, args.out, args.overwrite, provenance, show_progress=not args.quiet,
+                         realtime=realtime)  # fmt: skip
     print(format_table(result.metrics))
     print(f"run folder: {args.out}")
     return 0

@@ -89,6 +89,11 @@ class Dataset(Protocol):
         """True when frames carry label images."""
         ...
 
+    @property
+    def stamps_ns(self) -> list[int]:
+        """Time stamp of every frame (ns), without decoding any."""
+        ...
+
     def __len__(self) -> int: ...
 
     def __getitem__(self, index: int) -> Frame: ...
@@ -198,6 +203,11 @@ class RecordDataset:
     def records(self) -> list[FrameRecord]:
         """The kept frames' records."""
         return list(self._records)
+
+    @property
+    def stamps_ns(self) -> list[int]:
+        """Time stamp of every kept frame (ns)."""
+        return [r.stamp_ns for r in self._records]
 
     def __len__(self) -> int:
         return len(self._records)

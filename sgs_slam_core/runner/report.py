@@ -14,6 +14,8 @@ __all__ = ["METRIC_ROWS", "format_table", "read_metrics", "write_metrics"]
 # (key, label, unit conversion, format)
 METRIC_ROWS: tuple[tuple[str, str, float, str], ...] = (
     ("frames", "frames", 1, "{:.0f}"),
+    ("frames_dropped", "frames dropped (realtime: tracker busy)", 1, "{:.0f}"),
+    ("realtime_hz", "realtime replay rate (Hz)", 1, "{:.1f}"),
     ("ate_rmse_m", "ATE RMSE (cm, aligned camera centres)", 100, "{:.3f}"),
     ("ate_mean_m", "ATE mean (cm)", 100, "{:.3f}"),
     ("ate_paper_m", "ATE as SplaTAM/SGS-SLAM print it (cm)", 100, "{:.3f}"),

@@ -12,9 +12,16 @@ from sgs_slam_core.slam.settings import KeyframeSettings
 __all__ = ["Window", "is_keyframe", "label_miou", "overlap_scores", "select_window"]
 
 
-def is_keyframe(index: int, every: int) -> bool:
-    """Frame 0 and every frame with (index + 1) % every == 0 (the reference's rule)."""
-    return index == 0 or (index + 1) % every == 0
+def is_keyframe(index: int, every: int, last: int | None = None) -> bool:
+    """Frame 0 and every frame with (index + 1) % every == 0 (the reference's rule).
+
+    ``last``: the latest keyframe's index. When frames are skipped (live mapping takes the newest
+    tracked frame), the first frame past such a boundary since ``last`` counts; with every frame
+    offered this is the same rule.
+    """
+    if index == 0 or last is None:
+        return index == 0 or (index + 1) % every == 0
+    return (index + 1) // every > (last + 1) // every
 
 
 def overlap_scores(

@@ -6,7 +6,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from sgs_slam_core.geometry.se3 import se3_exp
+from sgs_slam_core.geometry.se3 import se3_exp, so3_exp, so3_log
 
 __all__ = ["PoseParameters", "predict_constant_velocity"]
 
@@ -41,11 +41,21 @@ class PoseParameters:
             return (se3_exp(xi) @ self.start.double().cpu()).numpy()
 
 
-def predict_constant_velocity(c2w_prev: np.ndarray, c2w_prev2: np.ndarray | None) -> np.ndarray:  # [4, 4]
-    """Next camera-to-world pose assuming the last relative motion repeats (identity motion without history)."""
+def predict_constant_velocity(
+    c2w_prev: np.ndarray, c2w_prev2: np.ndarray | None, fraction: float = 1.0
+) -> np.ndarray:  # [4, 4]
+    """Next camera-to-world pose assuming the last relative motion repeats (identity motion without history).
+
+    ``fraction``: the new frame's time gap over the last one (frames dropped in live mode); the
+    motion is scaled by it (rotation angle and translation), 1 repeats it exactly.
+    """
     if c2w_prev2 is None:
         return c2w_prev.copy()
     motion = np.linalg.inv(c2w_prev2) @ c2w_prev
+    if abs(fraction - 1.0) > 1e-9:
+        omega = so3_log(torch.from_numpy(motion[:3, :3].copy()))
+        motion[:3, :3] = so3_exp(omega * fraction).numpy()
+        motion[:3, 3] *= fraction
     pred = c2w_prev @ motion
     u, _, vt = np.linalg.svd(pred[:3, :3])  # keep the rotation orthonormal
     pred[:3, :3] = u @ vt

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 from torch.profiler import record_function
 
+from sgs_slam_core import native
 from sgs_slam_core.config.loader import config_to_dict
 from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.editing import EditRecord, EditRequest
@@ -20,8 +22,10 @@ from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.se3 import se3_inverse
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.mapio.native import MapFile
+from sgs_slam_core.render import cpu_backend
 from sgs_slam_core.render.api import RenderOutput, render
 from sgs_slam_core.semantics import SemanticCodec
+from sgs_slam_core.slam import photometric
 from sgs_slam_core.slam.densify import densify_mask, gaussians_from_pixels, scene_radius
 from sgs_slam_core.slam.edits import EditLocks
 from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors, resize_arrays
@@ -114,6 +118,18 @@ class Slam:
         self._mutate = threading.RLock()
         self.reset()
 
+    def prepare(self, announce: Callable[[str], None]) -> None:
+        """Build (or load) the compiled kernels this configuration uses, before anything is timed.
+
+        ``announce`` gets a line for each kernel that must be compiled first (about a minute each).
+        """
+        extensions = []
+        if self.device.type == "cpu":
+            if self.config.render.backend in ("auto", "cpu"):
+                extensions.append(cpu_backend.EXTENSION)
+            extensions.append(photometric.EXTENSION)
+        native.prepare(extensions, announce)
+
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
         """Forget the map, poses, keyframes and edits (configuration and label table are kept)."""
@@ -127,8 +143,9 @@ class Slam:
         self.seen_ids: set[int] = {0}
         self.guard = TrackingGuard(self.config.guard)
         self.rng = np.random.default_rng(self.config.seed)
-        self.torch_rng = torch.Generator().manual_seed(self.config.seed)
+        self.torch_rng = torch.Generator(device="cpu").manual_seed(self.config.seed)
         self.frames_processed = 0
+        self._last_mapped: int | None = None  # index of the last frame mapping ran on
         self.failures = 0
         self._resumed_poses: list[np.ndarray] = []  # last two c2w of a loaded map (motion prior)
         self._loaded_trajectory: list[tuple[int, int, np.ndarray]] = []  # a loaded map's history, saved again
@@ -223,7 +240,10 @@ class Slam:
             added = self._densify(data, frame, c2w, index)
         timings["densify"] = time.perf_counter() - t0
         mapping, window = None, None
-        if index % self.config.mapping.every == 0 and self.config.mapping.iterations > 0:
+        every = self.config.mapping.every  # live mapping skips frames: the first past each multiple of `every`
+        last = self._last_mapped
+        if (last is None or index // every > last // every) and self.config.mapping.iterations > 0:
+            self._last_mapped = index
             t_sel = time.perf_counter()
             with record_function("keyframe_selection"):
                 window = self._select_window(data, c2w, frame.labels, index)
@@ -232,7 +252,7 @@ class Slam:
             self._set_gaussians(mapping.gaussians)
         if self.config.mapping.refresh_labels and use_sem:
             self._refresh_labels()
-        keyframe = is_keyframe(index, self.config.keyframes.every)
+        keyframe = is_keyframe(index, self.config.keyframes.every, self.keyframes[-1].index if self.keyframes else None)
         if keyframe:
             stored = Frame(frame.rgb, frame.depth, frame.intrinsics, frame.labels, frame.stamp_ns, None, index)
             self.keyframes.append(CompactFrame.from_frame(stored, np.linalg.inv(c2w)))
@@ -345,9 +365,24 @@ class Slam:
         poses = [*self._resumed_poses, *(c2w for _, _, c2w in self.trajectory[-2:])]  # a resumed map goes on moving
         prev = poses[-1] if poses else self.initial_c2w
         prev2 = poses[-2] if len(poses) > 1 and self.config.tracking.constant_velocity else None
-        init_c2w = predict_constant_velocity(prev, prev2)
+        init_c2w = predict_constant_velocity(prev, prev2, self._motion_fraction(frame.stamp_ns))
         use_sem = frame.labels is not None and self.config.tracking.weight_semantic > 0
         return track(self.gaussians, data, np.linalg.inv(init_c2w), self.config.tracking, self.config.render, use_sem)
+
+    def _motion_fraction(self, stamp_ns: int) -> float:
+        """Time since the last tracked frame over the gap before it, when frames were skipped (live mode).
+
+        1 when frames came evenly (within a camera's stamp jitter) or stamps are unknown, so lockstep
+        runs repeat the last motion exactly as the reference does.
+        """
+        if len(self.trajectory) < 2:
+            return 1.0
+        (_, t_prev2, _), (_, t_prev, _) = self.trajectory[-2:]
+        last_gap, gap = t_prev - t_prev2, stamp_ns - t_prev
+        if last_gap <= 0 or gap <= 0:
+            return 1.0
+        fraction = gap / last_gap
+        return 1.0 if 2 / 3 < fraction < 1.5 else min(fraction, 4.0)
 
     def _densify(self, data: FrameTensors, frame: Frame, c2w: np.ndarray, index: int) -> int:
         c2w_t = torch.as_tensor(c2w, dtype=torch.float32, device=self.device)

@@ -11,7 +11,7 @@ from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors
 from sgs_slam_core.slam.guard import TrackingGuard
-from sgs_slam_core.slam.keyframes import label_miou, overlap_scores, select_window
+from sgs_slam_core.slam.keyframes import is_keyframe, label_miou, overlap_scores, select_window
 from sgs_slam_core.slam.optimizer import GaussianOptimizer
 from sgs_slam_core.slam.pose import PoseParameters, predict_constant_velocity
 from sgs_slam_core.slam.settings import GuardSettings, KeyframeSettings, MappingSettings
@@ -31,6 +31,33 @@ def test_constant_velocity_repeats_the_last_motion():
     pred = predict_constant_velocity(b, a)
     assert np.allclose(np.linalg.inv(b) @ pred, b, atol=1e-12)
     assert np.array_equal(predict_constant_velocity(b, None), b)
+
+
+def test_constant_velocity_scales_the_motion_by_the_time_gap():
+    """A frame two gaps later (one dropped in live mode) moves twice as far and turns twice as much."""
+    a = np.eye(4)
+    b = se3_exp(torch.tensor([0.1, 0.0, 0.02, 0.0, 0.05, 0.0], dtype=torch.float64)).numpy()
+    twice = predict_constant_velocity(b, a, 2.0)
+    step = np.linalg.inv(b) @ twice  # the predicted motion from b
+    assert np.allclose(step[:3, 3], 2 * b[:3, 3], atol=1e-12)
+    assert np.allclose(step[:3, :3], b[:3, :3] @ b[:3, :3], atol=1e-12)
+    assert np.array_equal(predict_constant_velocity(b, a, 1.0), predict_constant_velocity(b, a))
+
+
+def test_keyframes_with_skipped_frames_take_the_first_past_each_boundary():
+    every = 5
+    lockstep, last = [], None
+    for i in range(20):  # every frame offered: the reference's rule (0, 4, 9, 14, 19)
+        if is_keyframe(i, every, last):
+            lockstep.append(i)
+            last = i
+    assert lockstep == [i for i in range(20) if i == 0 or (i + 1) % every == 0]
+    live, last = [], None
+    for i in (0, 3, 7, 8, 13, 16, 21):  # live mapping skips frames
+        if is_keyframe(i, every, last):
+            live.append(i)
+            last = i
+    assert live == [0, 7, 13, 16, 21]
 
 
 def test_pose_parameters_start_at_the_given_pose_and_move_in_the_camera_frame():

@@ -1,0 +1,108 @@
+"""The live pipeline's queue of one, and the realtime replay built on it."""
+
+import json
+import threading
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from sgs_slam_core.cli import main
+from sgs_slam_core.config import load_config
+from sgs_slam_core.datasets import open_dataset
+from sgs_slam_core.errors import DatasetError
+from sgs_slam_core.live import SlamPipeline
+from sgs_slam_core.metrics import read_tum_trajectory
+from sgs_slam_core.runner.realtime import release_times, run_realtime
+from sgs_slam_core.slam.system import Slam
+
+from ..conftest import FAST_SLAM
+
+
+class GatedSlam:
+    """Stands in for Slam: tracking blocks until released, so the test decides what is busy when."""
+
+    def __init__(self) -> None:
+        self.device = torch.device("cpu")
+        self.frames_processed, self.num_gaussians = 0, 0
+        self.gate = threading.Semaphore(0)
+        self.tracked: list[int] = []
+
+    def track(self, frame):
+        self.gate.acquire()
+        self.tracked.append(frame.index)
+        self.frames_processed += 1
+        return SimpleNamespace(failed=False, index=frame.index)
+
+    def map(self, frame, tracked):
+        self.num_gaussians += 1
+        return SimpleNamespace()
+
+
+def test_frames_arriving_while_tracking_is_busy_replace_the_waiting_one():
+    slam = GatedSlam()
+    pipeline = SlamPipeline(slam, lockstep=False, log=lambda _: None)
+    try:
+        pipeline.submit_frame(SimpleNamespace(index=0))
+        deadline = time.monotonic() + 5
+        while not pipeline._busy["track"] and time.monotonic() < deadline:  # frame 0 is being tracked
+            time.sleep(0.01)
+        for i in range(1, 6):  # 1..4 are replaced in turn, 5 waits
+            pipeline.submit_frame(SimpleNamespace(index=i))
+        for _ in range(2):
+            slam.gate.release()
+        assert pipeline.wait_idle(5.0)
+        assert slam.tracked == [0, 5]
+        st = pipeline.stats
+        assert (st.frames_in, st.tracked, st.dropped_frames) == (6, 2, 4)
+    finally:
+        slam.gate.release()
+        pipeline.shutdown()
+
+
+def test_lockstep_keeps_every_frame_in_order():
+    slam = GatedSlam()
+    pipeline = SlamPipeline(slam, lockstep=True, log=lambda _: None)
+    try:
+        for i in range(4):
+            pipeline.submit_frame(SimpleNamespace(index=i))
+        for _ in range(4):
+            slam.gate.release()
+        assert pipeline.wait_idle(5.0)
+        assert slam.tracked == [0, 1, 2, 3] and pipeline.stats.dropped_frames == 0
+    finally:
+        pipeline.shutdown()
+
+
+def test_release_times_follow_the_stamps_or_the_rate():
+    assert np.allclose(release_times([5_000_000_000, 5_100_000_000, 5_300_000_000], None), [0, 0.1, 0.3])
+    assert np.allclose(release_times([0, 0, 0], 10.0), [0, 0.1, 0.2])
+    with pytest.raises(DatasetError, match="--realtime HZ"):
+        release_times([3, 2, 1], None)
+    with pytest.raises(DatasetError, match="> 0"):
+        release_times([1, 2], 0.0)
+
+
+def test_realtime_replay_accounts_for_every_frame(tiny_scene):
+    dataset = open_dataset(tiny_scene)
+    slam = Slam(load_config("synthetic", overrides=list(FAST_SLAM)), dataset.label_table)
+    result = run_realtime(slam, dataset, hz=100.0)  # faster than 2 cores can track: frames are dropped
+    st = result.stats
+    assert st.frames_in == len(dataset) == st.frames_tracked + st.frames_dropped
+    assert 1 <= st.frames_tracked < len(dataset) and st.frames_mapped >= 1
+    assert result.dataset_indices[0] == 0 and result.dataset_indices == sorted(result.dataset_indices)
+    assert st.realtime_hz == pytest.approx(100.0)
+    assert all(np.isfinite(s.c2w).all() for s in result.steps)
+
+
+def test_cli_realtime_writes_the_counts(tiny_scene, tmp_path):
+    out = tmp_path / "rt"
+    sets = [a for o in FAST_SLAM for a in ("--set", o)]
+    assert main(["run", str(tiny_scene), "--out", str(out), "--realtime", "20", "--quiet", *sets]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames_in"] == 12 and metrics["realtime_hz"] == pytest.approx(20.0)
+    assert metrics["frames_tracked"] + metrics["frames_dropped"] == 12
+    stamps, _ = read_tum_trajectory(out / "trajectory.txt")
+    assert len(stamps) == metrics["frames_tracked"] == metrics["frames"]
