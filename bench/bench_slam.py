@@ -7,7 +7,8 @@ pass that profiles K frames (after ``--profile-warmup`` unprofiled ones) with to
 breaks the time down by the pipeline's ``record_function`` labels (track.render, map.backward, ...).
 
     python bench/bench_slam.py [INPUT] [--preset P] [--device cpu|cuda] [--max-frames N]
-                               [--downscale F] [--set KEY=VALUE] [--profile K] [--no-append]
+                               [--downscale F] [--set KEY=VALUE] [--profile K] [--realtime [HZ]]
+                               [--no-append]
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch.autograd import DeviceType
 from torch.profiler import ProfilerActivity, profile
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -29,11 +31,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import append_section, markdown_table
 from bench.plot import Series, line_panel, save_panels
 from sgs_slam_core.cli.demo import default_room_dir, ensure_room
-from sgs_slam_core.cli.run import default_preset
+from sgs_slam_core.cli.run import camera_rate, default_preset
 from sgs_slam_core.config import SlamConfig, load_config
 from sgs_slam_core.datasets import DatasetOptions, open_dataset
 from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.runner import RunResult, run_offline
+from sgs_slam_core.runner.realtime import RealtimeOptions
 from sgs_slam_core.slam.system import Slam
 
 LABELS = ("data_loading", "upload", "track.render", "track.loss", "track.backward", "track.step", "densify",
@@ -66,8 +69,12 @@ def summary_rows(result: RunResult, dataset: Dataset, preset: str) -> list[list[
         return f"{m[key] * 100:.2f}" if m.get(key) is not None else "-"
 
     gpu = f"{torch.cuda.max_memory_allocated() / 2**20:.0f}" if result.slam.device.type == "cuda" else "-"
+    realtime = (
+        f"{m['realtime_hz']:.0f} Hz: {m['frames_tracked']}/{m['frames_in']}" if m.get("realtime_hz") else "lockstep"
+    )
     return [[
-        f"{dataset.name} {len(steps)} fr", f"{k.width}x{k.height}", preset, str(result.slam.device),
+        f"{dataset.name} {m.get('frames_in', len(steps))} fr", f"{k.width}x{k.height}", preset, str(result.slam.device),
+        realtime,
         f"{np.median(track):.0f} / {_percentile(track, 95):.0f}",
         f"{m['map_ms_per_frame']:.0f}", f"{np.median(total):.0f}", f"{m['fps']:.2f}",
         f"{np.mean(iters):.1f}" if iters else "-", f"{m['num_gaussians']:,}",
@@ -77,7 +84,7 @@ def summary_rows(result: RunResult, dataset: Dataset, preset: str) -> list[list[
     ]]  # fmt: skip
 
 
-SUMMARY_HEADERS = ["input", "size", "preset", "device", "track ms (median / p95)", "map ms (mean)",
+SUMMARY_HEADERS = ["input", "size", "preset", "device", "mode: tracked/in", "track ms (median / p95)", "map ms (mean)",
                    "total ms (median)", "FPS", "track iters", "Gaussians", "peak host MB", "peak GPU MB",
                    "ATE cm", "PSNR dB", "depth L1 cm", "mIoU %"]  # fmt: skip
 
@@ -108,15 +115,35 @@ def profile_frames(dataset: Dataset, config: SlamConfig, warmup: int, count: int
         if slam.device.type == "cuda":
             torch.cuda.synchronize()
         wall_s = time.perf_counter() - t0
-    events = {e.key: e for e in prof.key_averages()}
     n = max(len(frames), 1)
-    rows = []
-    for label in LABELS:
-        if label in events:
-            e = events[label]
-            device_us = getattr(e, "device_time_total", 0.0)
-            rows.append(ProfileRow(label, e.cpu_time_total / 1e3 / n, device_us / 1e3 / n, e.count // n))
+    rows = [row for label in LABELS if (row := _label_row(prof.key_averages(), label, n)) is not None]
     return rows, wall_s * 1e3 / n
+
+
+def _label_row(averages: list, label: str, frames: int) -> ProfileRow | None:
+    """Host and device time under one record_function label, per frame.
+
+    With CUDA activity a label appears twice in ``key_averages()``: the host range (CPU device type:
+    its wall time, and the device time of the kernels launched inside it) and a GPU-side annotation
+    of the same name (no host time). Host time comes from the former; device time from whichever of
+    the two saw the kernels (the larger; they describe the same kernels, so they are not added).
+    """
+    host_us = device_host_view_us = device_annotation_us = 0.0
+    calls = 0
+    for e in averages:
+        if e.key != label:
+            continue
+        on_host = getattr(e, "device_type", DeviceType.CPU) == DeviceType.CPU
+        if on_host:
+            host_us += e.cpu_time_total
+            device_host_view_us += getattr(e, "device_time_total", 0.0)
+            calls += e.count
+        else:
+            device_annotation_us += getattr(e, "device_time_total", 0.0)
+    if calls == 0 and device_annotation_us == 0:
+        return None
+    device_us = max(device_host_view_us, device_annotation_us)
+    return ProfileRow(label, host_us / 1e3 / frames, device_us / 1e3 / frames, calls // frames)
 
 
 def profile_table(rows: list[ProfileRow], wall_ms: float, device: str) -> str:
@@ -126,7 +153,12 @@ def profile_table(rows: list[ProfileRow], wall_ms: float, device: str) -> str:
              f"{r.device_ms:.2f}" if device == "cuda" else "-", r.calls] for r in rows]  # fmt: skip
     body.append(["(unlabelled: Python, guard, bookkeeping)", f"{wall_ms - labelled:.2f}",
                  f"{100 * (wall_ms - labelled) / wall_ms:.1f}", "-", "-"])  # fmt: skip
-    return markdown_table(["label", "host ms/frame", "% of frame", "device ms/frame", "calls/frame"], body)
+    table = markdown_table(["label", "host ms/frame", "% of frame", "device ms/frame", "calls/frame"], body)
+    if device == "cuda":
+        busy = sum(r.device_ms for r in rows)
+        table += (f"\n\nDevice time under the labels: {busy:.1f} ms of {wall_ms:.1f} ms per frame "
+                  f"({100 * busy / wall_ms:.0f} % busy).")  # fmt: skip
+    return table
 
 
 def main() -> None:
@@ -141,6 +173,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, help="run folder (default: a temporary folder)")
     parser.add_argument("--profile", type=int, default=0, metavar="K", help="profile K frames in a second pass")
     parser.add_argument("--profile-warmup", type=int, default=20, help="unprofiled frames before the profiled ones")
+    parser.add_argument("--realtime", nargs="?", const="stamps", type=camera_rate, metavar="HZ",
+                        help="replay as a live camera (frames at their stamps, or HZ); default: lockstep")  # fmt: skip
     parser.add_argument("--no-append", action="store_true", help="print only, do not append to BENCHMARKS.md")
     args = parser.parse_args()
 
@@ -152,8 +186,11 @@ def main() -> None:
     out = args.out or Path(tempfile.mkdtemp(prefix="bench_slam_"))
     k = dataset.intrinsics
     print(f"{dataset.name}: {len(dataset)} frames at {k.width}x{k.height}, preset {preset}", file=sys.stderr)
-    result = run_offline(dataset, config, out, overwrite=True, provenance={"input": str(data), "bench": True})
-    title = f"{dataset.name} {k.width}x{k.height}, {preset}, {result.slam.device}"
+    realtime = None if args.realtime is None else RealtimeOptions(None if args.realtime == "stamps" else args.realtime)
+    result = run_offline(dataset, config, out, overwrite=True, provenance={"input": str(data), "bench": True},
+                         realtime=realtime)  # fmt: skip
+    mode = "" if realtime is None else f", realtime {args.realtime}"
+    title = f"{dataset.name} {k.width}x{k.height}, {preset}, {result.slam.device}{mode}"
     timing_plot(out / "timing.png", result, title)
     body = markdown_table(SUMMARY_HEADERS, summary_rows(result, dataset, preset))
     body += f"\n\nOverrides: {args.overrides or 'none'}. Run folder (frames.csv, metrics.json, timing.png): `{out}`.\n"

@@ -67,13 +67,14 @@ def markdown_table(headers: list[str], rows: list[list[object]]) -> str:
 
 
 def append_section(title: str, body: str) -> None:
-    """Append a dated section with machine, commit and command to BENCHMARKS.md."""
+    """Append a dated section with machine, commit and command to BENCHMARKS.md (or ``$SGS_SLAM_BENCH_OUT``)."""
     stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     header = (
         f"\n## {title}\n\n- date: {stamp}\n- machine: {machine()}\n- commit: {commit()}\n"
         f"- command: `{command_line()}`\n\n"
     )
-    if not BENCHMARKS_MD.exists():
-        BENCHMARKS_MD.write_text("# Benchmarks\n\nEvery section is appended by a script in `bench/`.\n")
-    with BENCHMARKS_MD.open("a") as f:
+    target = Path(os.environ.get("SGS_SLAM_BENCH_OUT") or BENCHMARKS_MD)  # the GPU suite collects them under $OUT
+    if not target.exists():
+        target.write_text("# Benchmarks\n\nEvery section is appended by a script in `bench/`.\n")
+    with target.open("a") as f:
         f.write(header + body.rstrip() + "\n")

@@ -1,0 +1,101 @@
+#!/usr/bin/env bash
+# The GPU suite in one device call: GPU tests, gsplat renderer benchmark, SLAM at 640x480 in lockstep
+# and at 30 Hz realtime, on the synthetic room and a TUM fr3/teddy subset. Results go under $OUT.
+#
+#   bash bench/gpu_suite.sh prepare [FRAMES] [--ros]   # here: wheels into .whl/, TUM subset into .gpu_data/
+#   bash bench/gpu_suite.sh run                        # there (the device tool), carrying .whl and .gpu_data
+#   bash bench/gpu_suite.sh smoke                      # here, on the CPU: the same steps at toy sizes
+#
+# The device call sends the checkout plus carried folders, 64 MiB in all: the TUM subset is FRAMES
+# colour+depth pairs (default 60, ~33 MB); --ros also carries the ROS 2 wheels for Python 3.12
+# (~45 MB, then use ~20 frames) so the slam_node CUDA test runs instead of skipping. The machine
+# allows 10 minutes per call: every step has its own time limit within the suite's 570 s, in order of
+# importance, and the suite goes on after a failure, so what finished still comes back. The figures to copy into BENCHMARKS.md are in
+# $OUT/BENCHMARKS-gpu.md (sections in the usual format, device named) and $OUT/summary.txt.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+mode=${1:-run}
+
+prepare() {
+  local frames=${1:-60} ros=${2:-}
+  local pip=(python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp
+             --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64
+             --platform any)
+  rm -rf .whl .gpu_data && mkdir -p .whl .gpu_data
+  "${pip[@]}" -d .whl gsplat==1.5.3
+  if [ "$ros" = "--ros" ]; then
+    .venv/bin/pip list --format=freeze 2>/dev/null | grep -E '^ros-' > .whl/ros-requirements.txt
+    "${pip[@]}" -d .whl -r .whl/ros-requirements.txt
+  fi
+  .venv/bin/python bench/tum_subset.py ../shared/data/tum_fr3_teddy .gpu_data/tum_fr3_teddy --frames "$frames"
+  du -sh .whl .gpu_data
+}
+
+DEADLINE=$((SECONDS + ${SGS_GPU_SUITE_BUDGET_S:-570}))  # the device call's 600 s, less the copy back
+
+step() {  # step NAME SECONDS COMMAND...: run with a time limit (and the suite's), log to $OUT/NAME.log
+  local name=$1 limit=$2
+  shift 2
+  local left=$((DEADLINE - SECONDS - 5))
+  if [ "$left" -lt 20 ]; then
+    echo "$name: skipped, the suite's time is up" | tee -a "$OUT/summary.txt"
+    return 0
+  fi
+  [ "$limit" -gt "$left" ] && limit=$left
+  local t0=$SECONDS
+  timeout "$limit" "$@" > "$OUT/$name.log" 2>&1
+  local rc=$?
+  echo "$name: exit $rc after $((SECONDS - t0)) s" | tee -a "$OUT/summary.txt"
+  return 0
+}
+
+run_suite() {
+  local device=$1 scale=$2 room_frames=$3 tum_frames=$4
+  : "${OUT:=$PWD/gpu_out}"
+  mkdir -p "$OUT"
+  export SGS_SLAM_BENCH_OUT=$OUT/BENCHMARKS-gpu.md TORCH_EXTENSIONS_DIR=${TORCH_EXTENSIONS_DIR:-/tmp/torch_ext}
+  export MAX_JOBS=${MAX_JOBS:-16} PYTHONPATH=/tmp/sgs_site:$PWD XDG_CACHE_HOME=/tmp/sgs_cache
+  : > "$OUT/summary.txt"
+  { nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo "no GPU";
+    $PY -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"; } | tee -a "$OUT/summary.txt"
+  if [ "$device" = cuda ] && ls .whl/*.whl > /dev/null 2>&1; then
+    $PY -m pip install -q --no-index --no-deps --target /tmp/sgs_site .whl/*.whl > "$OUT/pip.log" 2>&1
+  fi
+  local build_pid=""
+  if [ "$device" = cuda ]; then  # gsplat compiles (1-2 min) while the scene is generated
+    ($PY -c "from gsplat.cuda._backend import _C" > "$OUT/gsplat_build.log" 2>&1; echo "gsplat build exit $?" >> "$OUT/gsplat_build.log") &
+    build_pid=$!
+  fi
+  local w=$((640 / scale)) h=$((480 / scale)) room=/tmp/sgs_room_$scale
+  step synth 300 $PY -m sgs_slam_core.cli synth "$room" --preset room --width $w --height $h --frames "$room_frames" --overwrite
+  [ -n "$build_pid" ] && wait "$build_pid"
+  local tests=(test/devices/test_cuda.py)
+  [ "$device" = cuda ] && tests+=(test/render/test_gsplat_parity.py)
+  step gpu_tests 240 $PY -m pytest -q -rs "${tests[@]}"
+  local sets=(--device "$device" --no-append)
+  [ "$device" = cuda ] && sets=(--device cuda)
+  if [ "$device" = cuda ]; then
+    step render 120 $PY bench/bench_render.py --backend gsplat
+  fi
+  local tum=.gpu_data/tum_fr3_teddy
+  step slam_room 300 $PY bench/bench_slam.py "$room" --preset synthetic "${sets[@]}" --profile 5 --profile-warmup 10 --out "$OUT/run_room"
+  step slam_room_rt30 200 $PY bench/bench_slam.py "$room" --preset synthetic "${sets[@]}" --realtime 30 --out "$OUT/run_room_rt30"
+  if [ -d "$tum" ]; then
+    local tsets=("${sets[@]}" --max-frames "$tum_frames" --downscale "$scale")
+    step slam_tum 240 $PY bench/bench_slam.py "$tum" --preset tum "${tsets[@]}" --out "$OUT/run_tum"
+    step slam_tum_rt 150 $PY bench/bench_slam.py "$tum" --preset tum "${tsets[@]}" --realtime --out "$OUT/run_tum_rt"
+    step slam_tum_splatam_budget 300 $PY bench/bench_slam.py "$tum" --preset tum "${tsets[@]}" \
+      --set tracking.early_stop=false --set mapping.iterations=30 --set mapping.lr_means=1e-4 --out "$OUT/run_tum_splatam"
+  fi
+  for run in "$OUT"/run_*; do  # keep the small files; maps and renders stay behind
+    [ -d "$run" ] && find "$run" -maxdepth 1 -type f \( -name '*.sgsmap' -o -name '*.ply' \) -delete
+  done
+  echo "done: see $OUT/summary.txt and $OUT/BENCHMARKS-gpu.md"
+}
+
+case "$mode" in
+  prepare) prepare "${2:-60}" "${3:-}" ;;
+  run) PY=${PY:-python3} run_suite cuda 1 200 "${SGS_GPU_TUM_FRAMES:-60}" ;;
+  smoke) PY=${PY:-.venv/bin/python} OUT=${OUT:-/tmp/gpu_suite_smoke} run_suite cpu 8 6 6 ;;
+  *) echo "usage: bash bench/gpu_suite.sh prepare [FRAMES] [--ros] | run | smoke" >&2; exit 2 ;;
+esac
