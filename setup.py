@@ -26,6 +26,7 @@ setup(
         "mcap>=1.1",
         "mcap-ros2-support>=0.5",
         "ninja",  # builds the compiled CPU renderer on first use (with the system's g++)
+        "matplotlib>=3.7",  # trajectory.png, renders/*.png
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
