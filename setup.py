@@ -27,6 +27,7 @@ setup(
         "mcap-ros2-support>=0.5",
         "ninja",  # builds the compiled CPU renderer on first use (with the system's g++)
         "matplotlib>=3.7",  # trajectory.png, renders/*.png
+        "tqdm>=4.66",  # progress bars
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],

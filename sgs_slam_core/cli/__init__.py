@@ -6,12 +6,12 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from sgs_slam_core.cli import demo, edit, evaluate, export, map_labels, render_views, run, synth
+from sgs_slam_core.cli import compare, demo, edit, evaluate, export, map_labels, render_views, run, synth
 from sgs_slam_core.errors import SgsSlamError
 
 __all__ = ["main", "run_command"]
 
-_COMMANDS = (run, evaluate, synth, demo, edit, render_views, map_labels, export)
+_COMMANDS = (run, evaluate, compare, synth, demo, edit, render_views, map_labels, export)
 
 
 def build_parser() -> argparse.ArgumentParser:
