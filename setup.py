@@ -31,6 +31,7 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
+        "lpips": ["lpips>=0.1.4"],  # ships the LPIPS linear layers (the AlexNet backbone is still needed)
         "test": ["pytest>=8", "ruff>=0.6", "evo>=1.28"],
     },
     entry_points={
