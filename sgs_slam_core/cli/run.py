@@ -73,8 +73,15 @@ def open_input(path: Path, fmt: str, options: DatasetOptions, topics: dict[str, 
 
 
 def default_preset(path: Path, fmt: str) -> str:
-    """The preset matching a dataset: synthetic scenes (synthetic.yaml present) get ``synthetic``."""
+    """The preset matching a dataset: synthetic scenes (synthetic.yaml present) get ``synthetic``.
+
+    A bag converted by ``sgs-slam-bag`` carries its folder's preset in its metadata.
+    """
     name = detect_format(path) if fmt == "auto" else fmt
+    if name == "mcap":
+        from bags.preset import read_bag_preset  # noqa: PLC0415 - bags depends on the core, not the reverse
+
+        return read_bag_preset(path) or "tum"
     if name == "replica" and (path / "synthetic.yaml").is_file():
         return "synthetic"
     return {"tum": "tum", "scannet": "scannet", "replica": "replica"}.get(name, "tum")
