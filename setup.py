@@ -3,6 +3,7 @@
 from setuptools import find_packages, setup
 
 PACKAGE = "sgs_slam_ros"
+VIEWER = ["rerun-sdk>=0.41", "foxglove-sdk>=0.30"]  # the APIs used here (tested with 0.41.0 and 0.30.3)
 
 setup(
     name=PACKAGE,
@@ -31,8 +32,9 @@ setup(
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
+        "viewer": VIEWER,  # sgs-slam run --viewer rerun|foxglove
         "lpips": ["lpips>=0.1.4"],  # ships the LPIPS linear layers (the AlexNet backbone is still needed)
-        "test": ["pytest>=8", "ruff>=0.6", "evo>=1.28"],
+        "test": ["pytest>=8", "ruff>=0.6", "evo>=1.28", *VIEWER],
     },
     entry_points={
         "console_scripts": [

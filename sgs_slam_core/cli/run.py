@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from sgs_slam_core.cli.viewer_args import add_viewer_arguments, start_viewer, viewer_options_from_args
 from sgs_slam_core.config import list_presets, load_config
 from sgs_slam_core.datasets import FORMATS, Dataset, DatasetOptions, detect_format, open_dataset
 from sgs_slam_core.errors import DatasetError
@@ -35,6 +36,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True, help="run folder (must be empty unless --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty run folder")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_viewer_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -95,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
     preset = args.preset or default_preset(args.input, args.format)
     overrides = [*args.overrides, *([f"device={args.device}"] if args.device else [])]
     config = load_config(preset, args.config, overrides)  # config errors surface before any data is read
+    viewer_options = viewer_options_from_args(args)
     options = DatasetOptions(start=args.start, stride=args.stride, max_frames=args.max_frames, downscale=args.downscale)
     topics = parse_topics(args.topics)
     dataset = open_input(args.input, args.format, options, topics)
@@ -115,7 +118,9 @@ def run(args: argparse.Namespace) -> int:
         "overrides": overrides,
         "command": " ".join(sys.argv),
     }
-    result = run_offline(dataset, config, args.out, args.overwrite, provenance, show_progress=not args.quiet)
+    viewer = start_viewer(viewer_options)
+    result = run_offline(dataset, config, args.out, args.overwrite, provenance, show_progress=not args.quiet,
+                         viewer=viewer)  # fmt: skip
     print(format_table(result.metrics))
     print(f"run folder: {args.out}")
     return 0

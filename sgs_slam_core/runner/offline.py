@@ -34,6 +34,7 @@ from sgs_slam_core.runner.progress import SlamProgress
 from sgs_slam_core.runner.report import write_metrics
 from sgs_slam_core.runner.run_record import GROUND_TRUTH_FILE, write_ground_truth, write_run_yaml
 from sgs_slam_core.slam.system import Slam, StepResult
+from sgs_slam_core.viz.viewer import Viewer
 
 __all__ = ["RunResult", "check_run_dir", "prepare_run_dir", "run_offline"]
 
@@ -104,10 +105,10 @@ class _Loop:
     bad_frames: int = 0
 
 
-def _process_all(slam: Slam, dataset: Dataset, show_progress: bool) -> _Loop:
+def _process_all(slam: Slam, dataset: Dataset, show_progress: bool, viewer: Viewer | None = None) -> _Loop:
     """Feed every frame to ``slam``; frames it rejects are counted and skipped."""
     loop = _Loop()
-    observers = [SlamProgress(len(dataset))] if show_progress else []
+    observers = [*([SlamProgress(len(dataset))] if show_progress else []), *([viewer] if viewer else [])]
     for i in range(len(dataset)):
         t0 = time.perf_counter()
         with record_function("data_loading"):
@@ -126,7 +127,7 @@ def _process_all(slam: Slam, dataset: Dataset, show_progress: bool) -> _Loop:
         loop.rows.append(_csv_row(step, i))
         loop.track_s += step.track_time_s
         loop.map_s += step.map_time_s
-        for observer in observers:  # progress bar
+        for observer in observers:  # progress bar, live viewer
             observer.log_step(frame, step, slam)
     for observer in observers:
         observer.close()
@@ -158,15 +159,23 @@ def run_offline(
     provenance: dict[str, Any] | None = None,
     show_progress: bool = True,
     render_examples: int = 4,
+    viewer: Viewer | None = None,
 ) -> RunResult:
-    """Process every frame, save the outputs, evaluate, and return the metrics."""
+    """Process every frame, save the outputs, evaluate, and return the metrics.
+
+    ``viewer`` (see :func:`sgs_slam_core.viz.open_viewer`) receives every processed frame live.
+    """
     out = Path(out)
     prepare_run_dir(out, overwrite)
     dump_yaml(config, out / "config.yaml")
     torch.manual_seed(config.seed)
     slam = Slam(config, dataset.label_table)
     write_run_yaml(out / "run.yaml", provenance, slam.device)
-    loop = _process_all(slam, dataset, show_progress)
+    try:
+        loop = _process_all(slam, dataset, show_progress, viewer)
+    finally:
+        if viewer is not None:  # idempotent: flushes the stream when the loop stopped early
+            viewer.close()
     _write_outputs(out, slam, loop)
     frames = len(loop.frame_indices)
     metrics: dict[str, Any] = evaluate(

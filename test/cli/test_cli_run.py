@@ -78,6 +78,8 @@ def test_existing_output_is_refused_with_one_line(run_dir, tiny_scene):
         (["run", "{tiny}", "--out", "x", "--set", "tracking.iterationz=3"], "unknown config key"),
         (["eval", "/tmp"], "not a run folder"),
         (["compare", "/tmp"], "not a run folder (no metrics.json)"),
+        (["run", "{tiny}", "--out", "x", "--viewer-save", "live.txt"], "use a .rrd (rerun) or .mcap (foxglove)"),
+        (["run", "{tiny}", "--out", "x", "--viewer", "rerun", "--viewer-save", "l.mcap"], "records to a .rrd file"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_1(args, message, capsys, tiny_scene, tmp_path):
