@@ -49,9 +49,16 @@ def _git(*args: str) -> str | None:
 
 
 def git_info() -> dict[str, Any] | None:
-    """Commit, branch and whether tracked files differ from it; None outside a git checkout."""
+    """Commit, branch and whether tracked files differ from it; None unless running from a git checkout.
+
+    An installed copy (site-packages, a colcon install space) has no commit of its own, even when it
+    sits inside some other repository.
+    """
+    top = _git("rev-parse", "--show-toplevel")
+    if top is None or Path(top).resolve() != _SOURCE_DIR:
+        return None
     commit = _git("rev-parse", "HEAD")
-    if commit is None:
+    if commit is None:  # a repository without commits
         return None
     status = _git("status", "--porcelain", "--untracked-files=no")
     return {"commit": commit, "branch": _git("rev-parse", "--abbrev-ref", "HEAD"), "dirty": bool(status)}
