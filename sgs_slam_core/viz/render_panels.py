@@ -98,8 +98,8 @@ def _depth_row(fig: Figure, axes: list[Axes], p: RenderPanel) -> None:
     fig.colorbar(h, ax=axes[:2], label="depth (m)", shrink=0.9)
     err_cm = np.ma.masked_where(~valid, 100 * np.abs(p.depth - p.gt_depth))
     top = float(np.percentile(err_cm.compressed(), 99)) if err_cm.count() else 1.0
-    e = _image(axes[2], err_cm, "depth error |rendered - truth| (scale: 99th pct.)",
-               cmap=colormaps["magma"].with_extremes(bad="black"), vmin=0, vmax=max(top, 1e-3))  # fmt: skip
+    e = _image(axes[2], err_cm, "depth error (grey: no ground truth; scale to 99th pct.)",
+               cmap=colormaps["magma"].with_extremes(bad="#b0b0b0"), vmin=0, vmax=max(top, 1e-3))  # fmt: skip
     fig.colorbar(e, ax=axes[2], label="|error| (cm)", shrink=0.9)
 
 
