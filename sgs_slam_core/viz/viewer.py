@@ -15,6 +15,7 @@ never stops the mapping.
 
 from __future__ import annotations
 
+import abc
 import importlib.util
 import logging
 import socket
@@ -101,7 +102,7 @@ def kind_of_file(path: Path) -> ViewerKind:
     return kind
 
 
-class StreamingViewer:
+class StreamingViewer(abc.ABC):
     """Common part of the backends: snapshots, the final map on close, failure isolation."""
 
     def __init__(self, options: ViewerOptions) -> None:
@@ -146,21 +147,21 @@ class StreamingViewer:
             self.finish()
 
     # ------------------------------------------------------------------ backend interface
+    @abc.abstractmethod
     def start(self, table: LabelTable) -> None:
         """Static data sent once, before the first update (class names and colours)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def send(self, snap: Snapshot) -> None:
         """One update."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def send_points(self, index: int, stamp_ns: int, points: MapPoints) -> None:
         """The map's points alone (the final map)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def finish(self) -> None:
         """Flush and release sinks."""
-        raise NotImplementedError
 
 
 def check_port_free(host: str, port: int) -> None:
