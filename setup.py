@@ -3,6 +3,7 @@
 from setuptools import find_packages, setup
 
 PACKAGE = "sgs_slam_ros"
+VIEWER = ["rerun-sdk>=0.41", "foxglove-sdk>=0.30"]  # the APIs used here (tested with 0.41.0 and 0.30.3)
 
 setup(
     name=PACKAGE,
@@ -30,10 +31,14 @@ setup(
         "mcap>=1.1",
         "mcap-ros2-support>=0.5",
         "ninja",  # builds the compiled CPU renderer on first use (with the system's g++)
+        "matplotlib>=3.7",  # trajectory.png, renders/*.png
+        "tqdm>=4.66",  # progress bars
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
-        "test": ["pytest>=8", "ruff>=0.6", "evo>=1.28"],
+        "viewer": VIEWER,  # sgs-slam run --viewer rerun|foxglove
+        "lpips": ["lpips>=0.1.4"],  # ships the LPIPS linear layers (the AlexNet backbone is still needed)
+        "test": ["pytest>=8", "ruff>=0.6", "evo>=1.28", *VIEWER],
     },
     entry_points={
         "console_scripts": [

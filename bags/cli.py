@@ -13,6 +13,7 @@ from bags.info import bag_info
 from bags.writer import convert
 from sgs_slam_core.cli import run_command
 from sgs_slam_core.cli.progress import ProgressBar
+from sgs_slam_core.cli.run import default_preset
 from sgs_slam_core.datasets import FORMATS, DatasetOptions, open_dataset
 
 __all__ = ["main"]
@@ -25,11 +26,12 @@ def _convert(args: argparse.Namespace) -> int:
     dataset = open_dataset(args.input, args.format, DatasetOptions(max_frames=args.max_frames))
     bar = ProgressBar(len(dataset), "convert")
     t0 = time.perf_counter()
+    preset = default_preset(args.input, args.format)
     summary = convert(dataset, out, compress=args.compress == "zstd", dataset_name=f"{dataset.name}/{args.input.name}",
-                      progress=lambda done, _: bar.update(done))  # fmt: skip
+                      progress=lambda done, _: bar.update(done), preset=preset)  # fmt: skip
     elapsed = time.perf_counter() - t0
     size_mib, rate = summary.bytes / 2**20, summary.frames / elapsed
-    print(f"wrote {summary.frames} frames ({size_mib:.1f} MiB, {rate:.1f} frames/s) to {out}")
+    print(f"wrote {summary.frames} frames ({size_mib:.1f} MiB, {rate:.1f} frames/s) to {out} (preset {preset})")
     return 0
 
 

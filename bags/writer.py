@@ -3,7 +3,8 @@
 Topics: colour (rgb8), camera_info, depth (16UC1 mm, registered to colour), semantic class ids
 (16UC1, when the dataset has labels), the ground-truth PoseStamped in ``map`` (when present) and
 ``/clock``; one stamp per frame shared by every topic, so ExactTime synchronisation works on
-replay. The label table, dataset name and depth units go into the bag's custom metadata.
+replay. The label table, dataset name, depth units and config preset go into the bag's custom
+metadata.
 Compression is zstd at the storage (chunk) level, so plain MCAP readers still work.
 """
 
@@ -25,6 +26,7 @@ from rosbags.typesys import Stores, get_typestore
 from bags import rosbags_messages as rm
 from bags.errors import BagError
 from bags.layout import CAMERA_FRAME, MAP_FRAME, BagTopics
+from bags.preset import preset_metadata
 from msg_adapters import c2w_to_pose, camera_info_fields, image_fields
 from msg_adapters.stamps import ns_to_stamp
 from sgs_slam_core.datasets.base import Dataset
@@ -68,9 +70,15 @@ def convert(
     dataset_name: str = "",
     topics: BagTopics = BagTopics(),  # noqa: B008 - immutable default
     progress: Callable[[int, int], None] | None = None,
+    preset: str | None = None,
 ) -> ConvertSummary:
-    """Write ``dataset`` (its first ``max_frames`` frames) to the bag folder ``out``; never overwrites."""
+    """Write ``dataset`` (its first ``max_frames`` frames) to the bag folder ``out``; never overwrites.
+
+    ``preset`` (the config preset of the dataset folder) is stored in the metadata, so a run on the
+    bag uses the same preset as a run on the folder.
+    """
     out = Path(out)
+    custom = preset_metadata(preset) if preset is not None else {}
     if out.exists():
         raise BagError(f"{out} exists; refusing to overwrite")
     n = len(dataset) if max_frames is None else min(max_frames, len(dataset))
@@ -98,6 +106,8 @@ def convert(
         writer.set_custom_data("label_table", json.dumps(dataset.label_table.to_dict(), separators=(",", ":")))
         writer.set_custom_data("depth_units_per_metre", str(DEPTH_UNITS_PER_M))
         writer.set_custom_data("frames", str(n))
+        for key, value in custom.items():
+            writer.set_custom_data(key, value)
         for i, frame in enumerate(_frames_ahead(dataset, n)):
             stamp = frame.stamp_ns
 

@@ -1,4 +1,8 @@
-"""Line charts for benchmark results, drawn with OpenCV (no plotting library in the dependencies)."""
+"""Line charts for benchmark results, drawn with matplotlib (Agg, no pyplot state).
+
+:func:`line_chart` builds a labelled figure (title, axis labels with units, ticks, grid, legend);
+:func:`line_panel` rasterises one to an image so that several can be stacked by :func:`save_panels`.
+"""
 
 from __future__ import annotations
 
@@ -7,62 +11,55 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from matplotlib.figure import Figure
 
-__all__ = ["Series", "line_panel", "save_panels"]
+from sgs_slam_core.viz.figures import new_figure
 
-_FONT = cv2.FONT_HERSHEY_SIMPLEX
+__all__ = ["Series", "line_chart", "line_panel", "save_panels"]
+
+_DPI = 100
 
 
 @dataclass(frozen=True)
 class Series:
-    """One line: y values over frame index, a legend name and a BGR colour."""
+    """One line: y values over frame index, a legend name and a BGR colour (0-255)."""
 
     name: str
     values: np.ndarray  # [T]
     color: tuple[int, int, int]
 
+    @property
+    def rgb(self) -> tuple[float, float, float]:
+        """The colour as matplotlib's RGB in [0, 1]."""
+        b, g, r = self.color
+        return (r / 255, g / 255, b / 255)
 
-def _nice_max(value: float) -> float:
-    if value <= 0:
-        return 1.0
-    exp = 10 ** np.floor(np.log10(value))
-    for step in (1, 2, 2.5, 5, 10):
-        if step * exp >= value:
-            return float(step * exp)
-    return float(10 * exp)
+
+def line_chart(series: list[Series], title: str, y_label: str, size: tuple[int, int] = (720, 300),
+               x_label: str = "frame") -> Figure:  # fmt: skip
+    """A figure of ``size`` (W, H) pixels: one line per series over its index, y from 0."""
+    fig = new_figure(size[0] / _DPI, size[1] / _DPI, dpi=_DPI)
+    ax = fig.add_subplot()
+    for s in series:
+        values = np.asarray(s.values, dtype=float)
+        ax.plot(np.arange(len(values)), values, color=s.rgb, lw=1.4, label=s.name)
+    ax.set_title(title, fontsize=10)
+    ax.set_xlabel(x_label)
+    ax.set_ylabel(y_label)
+    ax.set_ylim(bottom=0)
+    frames = max((len(s.values) for s in series), default=1)
+    ax.set_xlim(0, max(frames - 1, 1))
+    ax.grid(True, lw=0.5, alpha=0.5)
+    ax.legend(loc="best", fontsize=8, framealpha=0.85)
+    return fig
 
 
 def line_panel(series: list[Series], title: str, y_label: str, size: tuple[int, int] = (720, 300)) -> np.ndarray:
-    """A white panel [H, W, 3] with axes, 5 y ticks, the lines and a legend."""
-    width, height = size
-    left, right, top, bottom = 70, 15, 30, 35
-    img = np.full((height, width, 3), 255, np.uint8)
-    frames = max(len(s.values) for s in series)
-    y_max = _nice_max(max(float(np.nanmax(s.values)) for s in series if len(s.values)))
-    plot_w, plot_h = width - left - right, height - top - bottom
-
-    def xy(i: float, v: float) -> tuple[int, int]:
-        return int(left + plot_w * i / max(frames - 1, 1)), int(top + plot_h * (1 - v / y_max))
-
-    for k in range(6):
-        y = top + plot_h * k // 5
-        cv2.line(img, (left, y), (width - right, y), (225, 225, 225), 1)
-        cv2.putText(img, f"{y_max * (1 - k / 5):g}", (4, y + 4), _FONT, 0.38, (60, 60, 60), 1, cv2.LINE_AA)
-    cv2.rectangle(img, (left, top), (width - right, height - bottom), (0, 0, 0), 1)
-    for k in range(5):
-        frame = round((frames - 1) * k / 4)
-        x, _ = xy(frame, 0)
-        cv2.putText(img, str(frame), (x - 8, height - bottom + 15), _FONT, 0.38, (60, 60, 60), 1, cv2.LINE_AA)
-    cv2.putText(img, "frame", (width // 2 - 15, height - 6), _FONT, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(img, f"{title} ({y_label})", (left, 20), _FONT, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
-    for n, s in enumerate(series):
-        points = np.array([xy(i, v) for i, v in enumerate(s.values) if np.isfinite(v)], np.int32)
-        if len(points) > 1:
-            cv2.polylines(img, [points], False, s.color, 1, cv2.LINE_AA)
-        x = width - right - 150
-        cv2.line(img, (x, top + 14 + 16 * n), (x + 20, top + 14 + 16 * n), s.color, 2)
-        cv2.putText(img, s.name, (x + 26, top + 18 + 16 * n), _FONT, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
-    return img
+    """:func:`line_chart` as a BGR image [H, W, 3] uint8 (for :func:`save_panels` or cv2)."""
+    fig = line_chart(series, title, y_label, size)
+    fig.canvas.draw()
+    rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]
+    return np.ascontiguousarray(rgba[..., 2::-1])
 
 
 def save_panels(path: str | Path, panels: list[np.ndarray]) -> None:

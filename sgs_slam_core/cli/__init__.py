@@ -17,11 +17,21 @@ def build_parser() -> argparse.ArgumentParser:
     The command modules are imported here, not at package import, so library modules may use
     ``sgs_slam_core.cli.progress`` without importing every command (and the runner with them).
     """
-    from sgs_slam_core.cli import demo, edit, evaluate, export, map_labels, render_views, run, synth  # noqa: PLC0415
+    from sgs_slam_core.cli import (  # noqa: PLC0415
+        compare,
+        demo,
+        edit,
+        evaluate,
+        export,
+        map_labels,
+        render_views,
+        run,
+        synth,
+    )
 
     parser = argparse.ArgumentParser(prog="sgs-slam", description="Semantic Gaussian-splatting SLAM, offline tools.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for module in (run, evaluate, synth, demo, edit, render_views, map_labels, export):
+    for module in (run, evaluate, compare, synth, demo, edit, render_views, map_labels, export):
         module.add_parser(sub)
     return parser
 

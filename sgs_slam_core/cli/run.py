@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from sgs_slam_core.cli.viewer_args import add_viewer_arguments, start_viewer, viewer_options_from_args
 from sgs_slam_core.config import list_presets, load_config
 from sgs_slam_core.datasets import FORMATS, Dataset, DatasetOptions, detect_format, open_dataset
 from sgs_slam_core.errors import DatasetError
@@ -39,6 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--realtime", nargs="?", const="stamps", type=camera_rate, metavar="HZ",
                    help="replay as a live camera: frames released at their recorded stamps (or HZ per second), "
                    "dropped while tracking is busy; mapping runs beside it (default: lockstep)")  # fmt: skip
+    add_viewer_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -90,8 +92,15 @@ def open_input(path: Path, fmt: str, options: DatasetOptions, topics: dict[str, 
 
 
 def default_preset(path: Path, fmt: str) -> str:
-    """The preset matching a dataset: synthetic scenes (synthetic.yaml present) get ``synthetic``."""
+    """The preset matching a dataset: synthetic scenes (synthetic.yaml present) get ``synthetic``.
+
+    A bag converted by ``sgs-slam-bag`` carries its folder's preset in its metadata.
+    """
     name = detect_format(path) if fmt == "auto" else fmt
+    if name == "mcap":
+        from bags.preset import read_bag_preset  # noqa: PLC0415 - bags depends on the core, not the reverse
+
+        return read_bag_preset(path) or "tum"
     if name == "replica" and (path / "synthetic.yaml").is_file():
         return "synthetic"
     return {"tum": "tum", "scannet": "scannet", "replica": "replica"}.get(name, "tum")
@@ -105,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
     preset = args.preset or default_preset(args.input, args.format)
     overrides = [*args.overrides, *([f"device={args.device}"] if args.device else [])]
     config = load_config(preset, args.config, overrides)  # config errors surface before any data is read
+    viewer_options = viewer_options_from_args(args)
     options = DatasetOptions(start=args.start, stride=args.stride, max_frames=args.max_frames, downscale=args.downscale)
     topics = parse_topics(args.topics)
     dataset = open_input(args.input, args.format, options, topics)
@@ -127,8 +137,9 @@ def run(args: argparse.Namespace) -> int:
         "realtime": args.realtime,
     }
     realtime = None if args.realtime is None else RealtimeOptions(None if args.realtime == "stamps" else args.realtime)
+    viewer = start_viewer(viewer_options)
     result = run_offline(dataset, config, args.out, args.overwrite, provenance, show_progress=not args.quiet,
-                         realtime=realtime)  # fmt: skip
+                         realtime=realtime, viewer=viewer)  # fmt: skip
     print(format_table(result.metrics))
     print(f"run folder: {args.out}")
     return 0

@@ -4,7 +4,7 @@ from sgs_slam_core.metrics.image import depth_l1, ms_ssim, psnr, ssim
 from sgs_slam_core.metrics.lpips import load_lpips
 from sgs_slam_core.metrics.semantic import ConfusionMatrix, paper_frame_miou
 from sgs_slam_core.metrics.trajectory import AteResult, RpeResult, ate, ate_paper, rpe, umeyama
-from sgs_slam_core.metrics.trajectory_io import plot_trajectories, read_tum_trajectory, write_tum_trajectory
+from sgs_slam_core.metrics.trajectory_io import read_tum_trajectory, write_tum_trajectory
 
 __all__ = [
     "AteResult",
@@ -16,7 +16,6 @@ __all__ = [
     "load_lpips",
     "ms_ssim",
     "paper_frame_miou",
-    "plot_trajectories",
     "psnr",
     "read_tum_trajectory",
     "rpe",

@@ -1,18 +1,19 @@
 """LPIPS (AlexNet variant, Zhang et al. 2018), computed only when pretrained weights are on disk.
 
-The weights cannot be downloaded here. Point ``SGS_SLAM_LPIPS_ALEXNET`` at torchvision's AlexNet
-state dict (``alexnet-owt-7be5be79.pth``) and ``SGS_SLAM_LPIPS_LINEAR`` at the LPIPS package's
-``weights/v0.1/alex.pth``; otherwise :func:`load_lpips` returns ``(None, reason)`` and reports carry
-``null`` with that reason.
+The weights cannot be downloaded here; :mod:`sgs_slam_core.metrics.lpips_weights` finds them (the
+``lpips`` package ships the linear heads; the AlexNet backbone comes from ``SGS_SLAM_LPIPS_ALEXNET``
+or torch hub's cache). Without both, :func:`load_lpips` returns ``(None, reason)`` and reports carry
+``null`` with that reason, naming the part that is missing.
 """
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
+import pickle
 
 import torch
 from torch import Tensor, nn
+
+from sgs_slam_core.metrics.lpips_weights import find_lpips_weights
 
 __all__ = ["Lpips", "load_lpips"]
 
@@ -67,13 +68,12 @@ class Lpips(nn.Module):
 
 def load_lpips(device: torch.device | str = "cpu") -> tuple[Lpips | None, str]:
     """The metric with pretrained weights, or ``(None, why not)``."""
-    paths = {name: os.environ.get(f"SGS_SLAM_LPIPS_{name}") for name in ("ALEXNET", "LINEAR")}
-    missing = [f"SGS_SLAM_LPIPS_{n}" for n, p in paths.items() if not p or not Path(p).is_file()]
-    if missing:
-        return None, f"LPIPS weights not available (set {' and '.join(missing)} to weight files)"
+    weights = find_lpips_weights()
+    if weights.alexnet is None or weights.linear is None:
+        return None, weights.note()
     try:
         model = Lpips()
-        model.load(torch.load(paths["ALEXNET"], map_location="cpu"), torch.load(paths["LINEAR"], map_location="cpu"))
-    except (OSError, RuntimeError, KeyError) as err:
-        return None, f"LPIPS weights could not be loaded: {err}"
+        model.load(torch.load(weights.alexnet, map_location="cpu"), torch.load(weights.linear, map_location="cpu"))
+    except (OSError, RuntimeError, KeyError, pickle.UnpicklingError) as err:
+        return None, f"LPIPS weights could not be loaded from {weights.alexnet} and {weights.linear}: {err}"
     return model.eval().to(device), ""

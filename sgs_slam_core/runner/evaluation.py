@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import torch
 
@@ -26,7 +25,6 @@ from sgs_slam_core.metrics import (
     load_lpips,
     ms_ssim,
     paper_frame_miou,
-    plot_trajectories,
     psnr,
     rpe,
     ssim,
@@ -34,6 +32,7 @@ from sgs_slam_core.metrics import (
 from sgs_slam_core.render.api import RenderOutput, render
 from sgs_slam_core.render.settings import RenderSettings
 from sgs_slam_core.semantics import SemanticCodec
+from sgs_slam_core.viz import RenderPanel, plot_trajectory, save_render_panels
 
 __all__ = ["EvalOptions", "eval_indices", "evaluate", "trajectory_metrics"]
 
@@ -66,28 +65,6 @@ def trajectory_metrics(est: np.ndarray, gt: np.ndarray) -> dict[str, float | Non
     }
 
 
-def _depth_vis(depth: np.ndarray, max_depth: float) -> np.ndarray:
-    scaled = np.clip(depth / max(max_depth, 1e-6) * 255, 0, 255).astype(np.uint8)
-    vis = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)[..., ::-1]
-    vis[depth <= 0] = 0
-    return vis
-
-
-def _save_example(path: Path, frame_rgb: np.ndarray, gt_sem: np.ndarray | None, gt_depth: np.ndarray,
-                  out: RenderOutput, pred_sem: np.ndarray | None) -> None:  # fmt: skip
-    rgb = (out.color.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
-    max_d = float(gt_depth.max()) if gt_depth.size else 1.0
-    rows = [np.concatenate([frame_rgb, rgb], 1)]
-    if gt_sem is not None and pred_sem is not None:
-        rows.append(np.concatenate([gt_sem, pred_sem], 1))
-    rows.append(np.concatenate([_depth_vis(gt_depth, max_d), _depth_vis(out.depth.cpu().numpy(), max_d)], 1))
-    grid = np.concatenate(rows, 0)
-    if grid.shape[1] < 640:  # small runs: enlarge (nearest) so the picture is readable
-        factor = int(np.ceil(640 / grid.shape[1]))
-        grid = cv2.resize(grid, (grid.shape[1] * factor, grid.shape[0] * factor), interpolation=cv2.INTER_NEAREST)
-    cv2.imwrite(str(path), grid[..., ::-1])
-
-
 class _FrameMetrics:
     """Accumulates per-frame image metrics and the semantic confusion matrix."""
 
@@ -99,8 +76,8 @@ class _FrameMetrics:
             k: [] for k in ("psnr", "psnr_masked", "ssim", "ms_ssim", "depth_l1", "lpips", "miou_paper")
         }
 
-    def add(self, frame: Frame, out: RenderOutput) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """Score one frame; returns (ground-truth, predicted) semantic colour images when labelled."""
+    def add(self, frame: Frame, out: RenderOutput) -> np.ndarray | None:
+        """Score one frame; returns the decoded class ids [H, W] when the frame is labelled."""
         device = out.color.device
         gt_rgb = torch.from_numpy(frame.rgb).to(device).float() / 255
         gt_depth = torch.from_numpy(frame.depth).to(device)
@@ -115,13 +92,13 @@ class _FrameMetrics:
         if self.lpips is not None:
             v["lpips"].append(float(self.lpips(pred, gt_rgb)))
         if frame.labels is None:
-            return None, None
+            return None
         labels = torch.from_numpy(frame.labels.astype(np.int64))
         decoded = self.codec.decode(out.semantic, self.candidates).cpu()
         self.cm.update(decoded, labels)
         present = sorted(int(i) for i in np.unique(frame.labels))
         v["miou_paper"].append(paper_frame_miou(self.codec.decode(out.semantic, present).cpu(), labels))
-        return self.codec.table.colorize(frame.labels), self.codec.table.colorize(decoded.numpy())
+        return decoded.numpy()
 
     def summary(self) -> dict[str, Any]:
         """Means over frames (None where nothing was measured)."""
@@ -140,16 +117,20 @@ class _FrameMetrics:
         }  # fmt: skip
 
 
-def _plot(path: Path, poses: list[np.ndarray], est: np.ndarray, gt: np.ndarray, ate_rmse: float | None) -> None:
+def _plot(path: Path, poses: list[np.ndarray], est: np.ndarray, gt: np.ndarray, gt_stamps: np.ndarray,
+          ate_rmse: float | None) -> None:  # fmt: skip
     """Trajectory plot; with ground truth the estimate is first aligned onto it."""
     if len(est) >= 3:
         res = ate(est, gt)
         aligned = est.copy()
         aligned[:, :3, :3] = res.rotation @ est[:, :3, :3]
         aligned[:, :3, 3] = est[:, :3, 3] @ res.rotation.T + res.translation
-        plot_trajectories(path, aligned, gt, title=f"ATE RMSE {100 * (ate_rmse or 0):.2f} cm")
+        title = f"estimate (aligned) vs ground truth: ATE RMSE {100 * (ate_rmse or 0):.2f} cm over {len(est)} frames"
+        plot_trajectory(path, aligned, gt, gt_stamps, title=title)
     else:
-        plot_trajectories(path, np.stack(poses), None, title="no ground truth")
+        plot_trajectory(
+            path, np.stack(poses), None, title=f"estimated trajectory, {len(poses)} frames (no ground truth)"
+        )
 
 
 def evaluate(
@@ -164,10 +145,14 @@ def evaluate(
     progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, Any]:
     """Compute every metric of ``metrics.json`` that depends on the map and trajectory."""
-    gt_pairs = [(p, dataset[i].gt_c2w) for i, p in zip(frame_indices, poses, strict=True)]
-    with_gt = [(p, g) for p, g in gt_pairs if g is not None]
-    est = np.stack([p for p, _ in with_gt]) if with_gt else np.zeros((0, 4, 4))
-    gt = np.stack([g for _, g in with_gt]) if with_gt else np.zeros((0, 4, 4))
+    with_gt = []  # (estimate, ground truth, stamp_ns) of frames with ground truth
+    for i, p in zip(frame_indices, poses, strict=True):
+        frame = dataset[i]
+        if frame.gt_c2w is not None:
+            with_gt.append((p, frame.gt_c2w, frame.stamp_ns))
+    est = np.stack([p for p, _, _ in with_gt]) if with_gt else np.zeros((0, 4, 4))
+    gt = np.stack([g for _, g, _ in with_gt]) if with_gt else np.zeros((0, 4, 4))
+    gt_stamps = np.array([s for _, _, s in with_gt], dtype=np.int64)
     metrics: dict[str, Any] = {"frames": len(frame_indices), **trajectory_metrics(est, gt), "gt_frames": len(with_gt)}
 
     scores = _FrameMetrics(codec, candidates, gaussians.device)
@@ -180,13 +165,16 @@ def evaluate(
         w2c = torch.as_tensor(np.linalg.inv(poses[t]), dtype=torch.float32, device=gaussians.device)
         with torch.no_grad():
             out = render(gaussians, frame.intrinsics, w2c, render_settings, with_semantics=frame.labels is not None)
-        gt_sem, pred_sem = scores.add(frame, out)
+        pred_labels = scores.add(frame, out)
         if t in examples and options.out_dir is not None:
             path = options.out_dir / "renders" / f"frame_{frame_indices[t]:06d}.png"
-            _save_example(path, frame.rgb, gt_sem, frame.depth, out, pred_sem)
+            panel = RenderPanel(frame.rgb, out.color.cpu().numpy(), frame.depth, out.depth.cpu().numpy(),
+                                frame.labels if pred_labels is not None else None, pred_labels)  # fmt: skip
+            title = f"frame {frame_indices[t]} (dataset index), rendered from the final map at the estimated pose"
+            save_render_panels(path, panel, codec.table, title)
         if progress:
             progress(n + 1, len(chosen))
     metrics.update(scores.summary(), eval_frames=len(chosen))
     if options.out_dir is not None and len(poses) >= 2:
-        _plot(options.out_dir / "trajectory.png", poses, est, gt, metrics["ate_rmse_m"])
+        _plot(options.out_dir / "trajectory.png", poses, est, gt, gt_stamps, metrics["ate_rmse_m"])
     return metrics

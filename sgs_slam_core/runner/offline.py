@@ -1,9 +1,10 @@
 """``run_offline``: the whole pipeline over a dataset, deterministic for a given config on CPU.
 
 The run folder receives ``trajectory.txt`` (TUM format, camera-to-world), ``metrics.json``,
-``config.yaml`` (resolved), ``run.yaml`` (input and options, for ``sgs-slam eval``), ``frames.csv``
-(per-frame timings and counters), ``map.sgsmap`` (native map), ``map.ply`` (3DGS splats),
-``renders/`` and ``trajectory.png``.
+``groundtruth.txt`` (the dataset's ground truth at the same stamps, TUM format), ``config.yaml``
+(resolved), ``run.yaml`` (input and options, for ``sgs-slam eval``, and provenance: git commit,
+versions, device), ``frames.csv`` (per-frame timings and counters), ``map.sgsmap`` (native map),
+``map.ply`` (3DGS splats), ``renders/`` and ``trajectory.png``.
 """
 
 from __future__ import annotations
@@ -20,21 +21,23 @@ from typing import Any
 
 import numpy as np
 import torch
-import yaml
 from torch.profiler import record_function
 
-from sgs_slam_core.cli.progress import ProgressBar
 from sgs_slam_core.config import dump_yaml
 from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.errors import DatasetError, FrameError
+from sgs_slam_core.frame import Frame
 from sgs_slam_core.mapio import save_map, write_splat_ply
-from sgs_slam_core.metrics import ate, write_tum_trajectory
+from sgs_slam_core.metrics import write_tum_trajectory
 from sgs_slam_core.render.api import resolve_backend
 from sgs_slam_core.runner.evaluation import EvalOptions, evaluate
+from sgs_slam_core.runner.progress import SlamProgress
 from sgs_slam_core.runner.realtime import RealtimeOptions, RealtimeStats, run_realtime
 from sgs_slam_core.runner.report import write_metrics
+from sgs_slam_core.runner.run_record import GROUND_TRUTH_FILE, write_ground_truth, write_run_yaml
 from sgs_slam_core.slam.system import Slam, StepResult
+from sgs_slam_core.viz.viewer import Viewer
 
 __all__ = ["RunResult", "check_run_dir", "prepare_run_dir", "run_offline"]
 
@@ -90,19 +93,13 @@ def _csv_row(step: StepResult, dataset_index: int) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def _ate_so_far(poses: list[np.ndarray], gts: list[np.ndarray | None]) -> str:
-    pairs = [(p, g) for p, g in zip(poses, gts, strict=True) if g is not None]
-    if len(pairs) < 3:
-        return ""
-    return f"ATE {ate(np.stack([p for p, _ in pairs]), np.stack([g for _, g in pairs])).rmse * 100:.2f} cm"
-
-
 @dataclass
 class _Loop:
     """What the frame loop produced."""
 
     frame_indices: list[int] = field(default_factory=list)  # dataset indices of processed frames
     poses: list[np.ndarray] = field(default_factory=list)
+    gts: list[np.ndarray | None] = field(default_factory=list)  # ground-truth c2w (dataset frame) or None
     steps: list[StepResult] = field(default_factory=list)
     rows: list[dict[str, Any]] = field(default_factory=list)
     track_s: float = 0.0
@@ -111,10 +108,10 @@ class _Loop:
     bad_frames: int = 0
 
 
-def _process_all(slam: Slam, dataset: Dataset, show_progress: bool) -> _Loop:
+def _process_all(slam: Slam, dataset: Dataset, show_progress: bool, viewer: Viewer | None = None) -> _Loop:
     """Feed every frame to ``slam``; frames it rejects are counted and skipped."""
-    loop, gts = _Loop(), []
-    bar = ProgressBar(len(dataset), "slam") if show_progress else None
+    loop = _Loop()
+    observers = [*([SlamProgress(len(dataset))] if show_progress else []), *([viewer] if viewer else [])]
     for i in range(len(dataset)):
         t0 = time.perf_counter()
         with record_function("data_loading"):
@@ -128,38 +125,41 @@ def _process_all(slam: Slam, dataset: Dataset, show_progress: bool) -> _Loop:
             continue
         loop.frame_indices.append(i)
         loop.poses.append(step.c2w)
-        gts.append(frame.gt_c2w)
+        loop.gts.append(frame.gt_c2w)
         loop.steps.append(step)
         loop.rows.append(_csv_row(step, i))
         loop.track_s += step.track_time_s
         loop.map_s += step.map_time_s
-        if bar:
-            extra = f"{slam.num_gaussians:,} G"
-            if len(loop.frame_indices) % 10 == 0 or i == len(dataset) - 1:
-                extra = f"{_ate_so_far(loop.poses, gts)}  {extra}"
-            bar.update(i + 1, extra)
+        for observer in observers:  # progress bar, live viewer
+            observer.log_step(frame, step, slam)
+    for observer in observers:
+        observer.close()
     if not loop.frame_indices:
         raise DatasetError("no frame could be processed")
     return loop
 
 
 def _process_realtime(
-    slam: Slam, dataset: Dataset, hz: float | None, show_progress: bool
+    slam: Slam, dataset: Dataset, hz: float | None, show_progress: bool, viewer: Viewer | None = None
 ) -> tuple[_Loop, RealtimeStats]:
     """Release the frames on time into the live pipeline; tracked frames only, in order."""
-    bar = ProgressBar(len(dataset), "slam (realtime)") if show_progress else None
+    observers = [*([SlamProgress(len(dataset), "slam (realtime)")] if show_progress else []),
+                 *([viewer] if viewer else [])]  # fmt: skip
 
-    def progress(released: int, tracked: int, dropped: int) -> None:
-        if bar:
-            bar.update(released, f"tracked {tracked}, dropped {dropped}  {slam.num_gaussians:,} G")
+    def on_tracked(frame: Frame, step: StepResult) -> None:
+        for observer in observers:  # progress bar (frames not tracked count as passed), live viewer
+            observer.log_step(frame, step, slam)
 
-    live = run_realtime(slam, dataset, hz, progress)
+    live = run_realtime(slam, dataset, hz, on_tracked)
+    for observer in observers:
+        observer.close()
     if not live.steps:
         raise DatasetError("no frame could be processed")
     loop = _Loop(bad_frames=live.stats.bad_frames if live.stats else 0)
-    for index, step in zip(live.dataset_indices, live.steps, strict=True):
+    for index, step, gt in zip(live.dataset_indices, live.steps, live.gt_c2w, strict=True):
         loop.frame_indices.append(index)
         loop.poses.append(step.c2w)
+        loop.gts.append(gt)
         loop.steps.append(step)
         loop.rows.append(_csv_row(step, index))
         loop.track_s += step.track_time_s
@@ -188,6 +188,7 @@ def _write_outputs(out: Path, slam: Slam, loop: _Loop) -> None:
     """trajectory.txt, frames.csv, map.sgsmap and map.ply."""
     stamps = [s.stamp_ns for s in loop.steps]
     write_tum_trajectory(out / "trajectory.txt", stamps, np.stack(loop.poses))
+    write_ground_truth(out / GROUND_TRUTH_FILE, stamps, loop.gts)
     with (out / "frames.csv").open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=_CSV_FIELDS)
         writer.writeheader()
@@ -207,24 +208,30 @@ def run_offline(
     show_progress: bool = True,
     render_examples: int = 4,
     realtime: RealtimeOptions | None = None,
+    viewer: Viewer | None = None,
 ) -> RunResult:
     """Process every frame, save the outputs, evaluate, and return the metrics.
 
     ``realtime``: release the frames at their stamps (or a rate) into the live pipeline instead of
     processing every frame in lockstep; metrics and ATE then cover the frames it kept up with.
+    ``viewer`` (see :func:`sgs_slam_core.viz.open_viewer`) receives every processed frame live.
     """
     out = Path(out)
     prepare_run_dir(out, overwrite)
     dump_yaml(config, out / "config.yaml")
-    (out / "run.yaml").write_text(yaml.safe_dump(provenance or {}, sort_keys=False))
     torch.manual_seed(config.seed)
     slam = Slam(config, dataset.label_table)
+    write_run_yaml(out / "run.yaml", provenance, slam.device)
     slam.prepare(lambda line: print(line, file=sys.stderr))  # compile before anything is timed
     live = None
-    if realtime is None:
-        loop = _process_all(slam, dataset, show_progress)
-    else:
-        loop, live = _process_realtime(slam, dataset, realtime.hz, show_progress)
+    try:
+        if realtime is None:
+            loop = _process_all(slam, dataset, show_progress, viewer)
+        else:
+            loop, live = _process_realtime(slam, dataset, realtime.hz, show_progress, viewer)
+    finally:
+        if viewer is not None:  # idempotent: flushes the stream when the loop stopped early
+            viewer.close()
     _write_outputs(out, slam, loop)
     metrics: dict[str, Any] = evaluate(
         dataset, loop.frame_indices, loop.poses, slam.gaussians, slam.codec, slam.label_candidates(), config.render,

@@ -11,6 +11,7 @@ than the camera delays releases, counted as ``late_frames``.
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
 from collections.abc import Callable
@@ -79,20 +80,28 @@ def run_realtime(
     slam: Slam,
     dataset: Dataset,
     hz: float | None,
-    on_release: Callable[[int, int, int], None] | None = None,
+    on_tracked: Callable[[Frame, StepResult], None] | None = None,
 ) -> RealtimeResult:
     """Release every frame of ``dataset`` on time into a live pipeline around ``slam``; wait for it.
 
-    ``on_release(released, tracked, dropped)`` is called after each release (progress display).
+    ``on_tracked(frame, step)`` is called on this (the releasing) thread for each newly tracked frame,
+    between releases (progress display, live viewer); ``step.mapping`` is not known yet there.
     """
     times = release_times(dataset.stamps_ns, hz)
     tracked: dict[int, tuple[Frame, TrackOutcome]] = {}
     mapped: dict[int, MapOutcome] = {}
+    news: queue.SimpleQueue[tuple[Frame, TrackOutcome]] = queue.SimpleQueue()
     lock = threading.Lock()
 
     def on_pose(frame: Frame, outcome: TrackOutcome) -> None:
         with lock:
             tracked[frame.index] = (frame, outcome)
+        news.put((frame, outcome))
+
+    def report() -> None:
+        while on_tracked is not None and not news.empty():
+            frame, outcome = news.get()
+            on_tracked(frame, _step(outcome, None, slam.num_gaussians))
 
     def on_map(frame: Frame, outcome: TrackOutcome, result: MapOutcome) -> None:
         with lock:
@@ -112,12 +121,11 @@ def run_realtime(
             elif -wait > _LATE_S:
                 late += 1
             pipeline.submit_frame(frame, time.monotonic())
-            if on_release is not None:
-                st = pipeline.stats
-                on_release(i + 1, st.tracked, st.dropped_frames)
-        while not pipeline.wait_idle(timeout=1.0):
-            pass
+            report()
+        while not pipeline.wait_idle(timeout=0.2):
+            report()
         wall_s = time.monotonic() - start
+        report()
     finally:
         pipeline.shutdown()
     st = pipeline.stats

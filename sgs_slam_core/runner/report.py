@@ -51,7 +51,7 @@ def format_table(metrics: dict[str, Any]) -> str:
     width = max(len(label) for label, _ in rows)
     lines = [f"{label.ljust(width)}  {value}" for label, value in rows]
     if metrics.get("lpips") is None and metrics.get("lpips_note"):
-        lines.append(f"(LPIPS: {metrics['lpips_note']})")
+        lines.append(f"(LPIPS not computed: {metrics['lpips_note']})")
     return "\n".join(lines)
 
 

@@ -77,6 +77,9 @@ def test_existing_output_is_refused_with_one_line(run_dir, tiny_scene):
         (["run", "/nonexistent/folder", "--out", "x"], "does not exist"),
         (["run", "{tiny}", "--out", "x", "--set", "tracking.iterationz=3"], "unknown config key"),
         (["eval", "/tmp"], "not a run folder"),
+        (["compare", "/tmp"], "not a run folder (no metrics.json)"),
+        (["run", "{tiny}", "--out", "x", "--viewer-save", "live.txt"], "use a .rrd (rerun) or .mcap (foxglove)"),
+        (["run", "{tiny}", "--out", "x", "--viewer", "rerun", "--viewer-save", "l.mcap"], "records to a .rrd file"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_1(args, message, capsys, tiny_scene, tmp_path):
@@ -90,3 +93,51 @@ def test_synth_command(tmp_path):
     assert main(["synth", str(tmp_path / "s"), "--preset", "tiny", "--frames", "2", "--seed", "3"]) == 0
     assert len(list((tmp_path / "s" / "frames").glob("*.png"))) == 2
     assert np.loadtxt(tmp_path / "s" / "traj.txt").shape == (2, 16)
+
+
+def test_ground_truth_file_lets_evo_reproduce_the_ate(run_dir):
+    from evo.core import metrics as evo_metrics
+    from evo.core import sync
+    from evo.main_ape import ape
+    from evo.tools import file_interface
+
+    ref = file_interface.read_tum_trajectory_file(str(run_dir / "groundtruth.txt"))
+    est = file_interface.read_tum_trajectory_file(str(run_dir / "trajectory.txt"))
+    assert ref.num_poses == est.num_poses == 8
+    ref, est = sync.associate_trajectories(ref, est, max_diff=1e-6)
+    result = ape(ref, est, evo_metrics.PoseRelation.translation_part, align=True)
+    ours = json.loads((run_dir / "metrics.json").read_text())["ate_rmse_m"]
+    assert result.stats["rmse"] == pytest.approx(ours, abs=1e-6)
+
+
+def test_run_yaml_records_commit_versions_and_device(run_dir):
+    import torch
+
+    from ..conftest import REPO
+
+    info = yaml.safe_load((run_dir / "run.yaml").read_text())
+    assert info["input"] and info["options"]["max_frames"] == 8  # what sgs-slam eval needs is kept
+    head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True, text=True, check=True)
+    assert info["git"]["commit"] == head.stdout.strip() and isinstance(info["git"]["dirty"], bool)
+    assert info["versions"]["torch"] == torch.__version__ and info["versions"]["sgs_slam_ros"]
+    assert info["device"]["type"] == "cpu" and info["device"]["threads"] >= 1
+    assert info["created_utc"].endswith("+00:00")
+
+
+def test_compare_prints_one_table_across_runs(run_dir, tmp_path, capsys):
+    other = tmp_path / "worse"
+    other.mkdir()
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    metrics.update(ate_rmse_m=metrics["ate_rmse_m"] * 2, psnr_db=metrics["psnr_db"] + 1.0)
+    (other / "metrics.json").write_text(json.dumps(metrics))
+    assert main(["compare", str(run_dir), str(other), "--metrics", "ate_rmse_m,psnr_db,miou"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[:4] == ["run", "ATE", "RMSE", "cm"] and "commit" in lines[0]
+    ours = next(line for line in lines if line.split()[0].endswith("tiny"))  # paths below their common parent
+    theirs = next(line for line in lines if line.split()[0].endswith("worse"))
+    ate_cm = 100 * json.loads((run_dir / "metrics.json").read_text())["ate_rmse_m"]
+    assert f"{ate_cm:.3f}*" in ours and f"{2 * ate_cm:.3f}" in theirs  # lower ATE is best
+    assert f"{metrics['psnr_db']:.2f}*" in theirs  # higher PSNR is best
+    head = yaml.safe_load((run_dir / "run.yaml").read_text())["git"]["commit"][:8]
+    assert head in ours and "synthetic" in ours
+    assert theirs.split()[-4:] == ["-", "-", "-", "cpu"]  # no run.yaml: no provenance, device from metrics.json
