@@ -1,5 +1,7 @@
 """Install the sgs_slam_ros ament_python package (also a plain pip package)."""
 
+from glob import glob
+
 from setuptools import find_packages, setup
 
 PACKAGE = "sgs_slam_ros"
@@ -15,6 +17,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/rviz", glob("rviz/*.rviz")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
     ],
     zip_safe=True,
     install_requires=[
@@ -25,11 +29,13 @@ setup(
         "rosbags>=0.11",
         "mcap>=1.1",
         "mcap-ros2-support>=0.5",
+        "zstandard",  # bags: zstd MCAP chunks (imported directly, not only through mcap)
+        "lz4",  # bags: lz4 MCAP chunks
         "ninja",  # builds the compiled CPU renderer on first use (with the system's g++)
     ],
     extras_require={
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
-        "test": ["pytest>=8", "ruff>=0.6", "evo>=1.28"],
+        "test": ["pytest>=8", "ruff>=0.6", "evo>=1.28", "colcon-core", "colcon-ros", "catkin_pkg"],
     },
     entry_points={
         "console_scripts": [

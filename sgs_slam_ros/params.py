@@ -217,6 +217,9 @@ class NodeParams:
             except ParameterException as err:  # wrong type or out of range: one clear line
                 if "type" in type(err).__name__.lower() or "type" in str(err).lower():
                     raise ParameterError(_type_hint(spec, err)) from err
+                if spec.bounds is not None and "range" in str(err):
+                    lo, hi = spec.bounds
+                    raise ParameterError(f"parameter {spec.name}: out of range (allowed: {lo} to {hi})") from err
                 raise ParameterError(f"parameter {spec.name}: {err}") from err
             self.values[spec.name] = _check(spec, declared)
         node.add_on_set_parameters_callback(self._validate)
