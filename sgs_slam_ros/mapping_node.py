@@ -251,6 +251,10 @@ class MappingNode(Node):
                 self.pipeline.slam.load_map(saved)
             if self.assembler is not None:
                 self.assembler.reset()
+            if saved.trajectory:  # render the loaded map from its last pose until new frames are mapped
+                _, stamp, c2w = saved.trajectory[-1]
+                self.last_mapped_stamp = stamp
+                self._view = _View(stamp, np.asarray(c2w, dtype=np.float64), self.camera_frame())
             self._map_changed()
             self.gaussians_out.now()
             response.success, response.message = True, f"loaded {len(saved.gaussians)} Gaussians from {path}"
