@@ -136,10 +136,14 @@ class BagPlayer(Node):
             self._pose_cv.notify_all()
 
     def wait_for_subscribers(self, timeout_s: float = 10.0) -> bool:
-        """Block until the colour topic has a subscriber (so no frame is published into the void)."""
+        """Block until the colour, depth and camera_info topics have subscribers (nothing is published into the void).
+
+        DDS discovery between processes takes up to a second or two: a short bag played at once is lost.
+        """
         end = time.monotonic() + timeout_s
-        pub = self._pubs.get(self.topics.color)
-        while pub is not None and pub.get_subscription_count() == 0:
+        wanted = (self.topics.color, self.topics.depth, self.topics.camera_info)
+        pubs = [self._pubs[t] for t in wanted if t in self._pubs]
+        while any(p.get_subscription_count() == 0 for p in pubs):
             if time.monotonic() > end or self._stop.is_set():
                 return False
             time.sleep(0.05)
@@ -226,6 +230,7 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--pose-topic", default="/tracking_node/pose", help="pose topic for --lockstep")
     p.add_argument("--timeout", type=float, default=60.0, help="seconds to wait for a pose in --lockstep")
     p.add_argument("--clock", action="store_true", help="publish /clock from log times (if the bag has none)")
+    p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for subscribers before playing")
     p.add_argument(
         "--reset", action="store_true", help=f"call the SLAM's reset services first ({', '.join(RESET_SERVICES)})"
     )
@@ -252,8 +257,10 @@ def main(args: list[str] | None = None) -> int:
             services = opts.reset_service or RESET_SERVICES
             done = player.reset_slam(services)
             player.get_logger().info(f"reset {', '.join(done) if done else 'nothing'} before playing")
-        if opts.lockstep and not player.wait_for_subscribers(30.0):
-            player.get_logger().warn("nobody subscribes to the colour topic yet; playing anyway")
+        if not player.wait_for_subscribers(opts.wait):
+            player.get_logger().warn(
+                f"nobody subscribes to {player.topics.color} after {opts.wait:g} s; playing anyway"
+            )
         stats = player.play()
         player.get_logger().info(
             f"done: {stats.frames} frames, {stats.messages} messages, {stats.lockstep_timeouts} timeouts"
