@@ -1,5 +1,7 @@
 """Install the sgs_slam_ros ament_python package (also a plain pip package)."""
 
+from glob import glob
+
 from setuptools import find_packages, setup
 
 PACKAGE = "sgs_slam_ros"
@@ -20,6 +22,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/rviz", glob("rviz/*.rviz")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
     ],
     zip_safe=True,
     install_requires=[
@@ -30,6 +34,8 @@ setup(
         "rosbags>=0.11",
         "mcap>=1.1",
         "mcap-ros2-support>=0.5",
+        "zstandard",  # bags: zstd MCAP chunks (imported directly, not only through mcap)
+        "lz4",  # bags: lz4 MCAP chunks
         "ninja",  # builds the compiled CPU renderer on first use (with the system's g++)
         "matplotlib>=3.7",  # trajectory.png, renders/*.png
         "tqdm>=4.66",  # progress bars
@@ -38,7 +44,7 @@ setup(
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
         "viewer": VIEWER,  # sgs-slam run --viewer rerun|foxglove
         "lpips": ["lpips>=0.1.4"],  # ships the LPIPS linear layers (the AlexNet backbone is still needed)
-        "test": ["pytest>=8", "ruff>=0.6", "evo>=1.28", *VIEWER],
+        "test": ["pytest>=8", "ruff>=0.6", "evo>=1.28", "colcon-core", "colcon-ros", "catkin_pkg", *VIEWER],
     },
     entry_points={
         "console_scripts": [

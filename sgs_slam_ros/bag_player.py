@@ -2,11 +2,12 @@
 
 Publishes every topic's raw CDR payloads (no re-serialisation) with the QoS recorded in the bag
 (reliable by default) and ``/clock`` from the bag (or from log times with ``--clock``). Options: a
-rate factor, ``--loop``, a start offset, and ``--lockstep``, which waits for the SLAM pose of each
+rate factor, ``--loop``, a start offset, ``--lockstep``, which waits for the SLAM pose of each
 colour frame (by header stamp) before publishing the next one, so a replay drops nothing and is
-deterministic::
+deterministic, and ``--reset``, which calls the SLAM nodes' ``~/reset`` first (a second replay's
+stamps would otherwise go backwards and every frame be refused)::
 
-    bag_player scene0000_00_bag --lockstep --ros-args -r __ns:=/
+    bag_player scene0000_00_bag --lockstep --reset --ros-args -r __ns:=/
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock
+from std_srvs.srv import Trigger
 
 from bags.errors import BagError
 from bags.layout import BagTopics
@@ -35,7 +37,9 @@ from bags.mcap_index import MessageRef
 from bags.reader import bag_file, open_index, read_metadata
 from msg_adapters import stamp_to_ns
 
-__all__ = ["BagPlayer", "PlayStats", "main"]
+__all__ = ["RESET_SERVICES", "BagPlayer", "PlayStats", "main"]
+
+RESET_SERVICES = ("/tracking_node/reset", "/mapping_node/reset")
 
 
 @dataclass
@@ -132,14 +136,40 @@ class BagPlayer(Node):
             self._pose_cv.notify_all()
 
     def wait_for_subscribers(self, timeout_s: float = 10.0) -> bool:
-        """Block until the colour topic has a subscriber (so no frame is published into the void)."""
+        """Block until the colour, depth and camera_info topics have subscribers (nothing is published into the void).
+
+        DDS discovery between processes takes up to a second or two: a short bag played at once is lost.
+        """
         end = time.monotonic() + timeout_s
-        pub = self._pubs.get(self.topics.color)
-        while pub is not None and pub.get_subscription_count() == 0:
+        wanted = (self.topics.color, self.topics.depth, self.topics.camera_info)
+        pubs = [self._pubs[t] for t in wanted if t in self._pubs]
+        while any(p.get_subscription_count() == 0 for p in pubs):
             if time.monotonic() > end or self._stop.is_set():
                 return False
             time.sleep(0.05)
         return True
+
+    def reset_slam(self, services: Sequence[str] = RESET_SERVICES, timeout_s: float = 30.0) -> list[str]:
+        """Call each Trigger service that exists (needs a spinning executor); returns the ones that succeeded."""
+        done = []
+        for name in services:
+            client = self.create_client(Trigger, name)
+            try:
+                if not client.wait_for_service(timeout_sec=min(timeout_s, 5.0)):
+                    self.get_logger().warn(f"--reset: no service {name}")
+                    continue
+                future = client.call_async(Trigger.Request())
+                end = time.monotonic() + timeout_s
+                while not future.done() and time.monotonic() < end and not self._stop.is_set():
+                    time.sleep(0.02)
+                result = future.result() if future.done() else None
+                if result is not None and result.success:
+                    done.append(name)
+                else:
+                    self.get_logger().warn(f"--reset: {name} failed: {result.message if result else 'no answer'}")
+            finally:
+                self.destroy_client(client)
+        return done
 
     def _messages(self) -> Iterator[tuple[str, MessageRef]]:
         start = self._order[0].log_time if self._order else 0
@@ -200,6 +230,11 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--pose-topic", default="/tracking_node/pose", help="pose topic for --lockstep")
     p.add_argument("--timeout", type=float, default=60.0, help="seconds to wait for a pose in --lockstep")
     p.add_argument("--clock", action="store_true", help="publish /clock from log times (if the bag has none)")
+    p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for subscribers before playing")
+    p.add_argument(
+        "--reset", action="store_true", help=f"call the SLAM's reset services first ({', '.join(RESET_SERVICES)})"
+    )
+    p.add_argument("--reset-service", action="append", metavar="NAME", help="reset this Trigger service instead")
     return p.parse_args(argv)
 
 
@@ -209,15 +244,23 @@ def main(args: list[str] | None = None) -> int:
     opts = _parse(remove_ros_args(argv)[1:])
     rclpy.init(args=argv)
     executor = MultiThreadedExecutor(num_threads=2)
-    player = None
+    player = spinner = None
     try:
         player = BagPlayer(opts.bag, opts.rate, opts.loop, opts.start, opts.lockstep, opts.pose_topic, opts.timeout,
                            opts.clock)  # fmt: skip
         executor.add_node(player)
-        spinner = threading.Thread(target=executor.spin, daemon=True)
+        # Not a daemon, and joined below: a daemon thread still inside rcl_wait when the interpreter
+        # finalises aborts the process ("terminate called without an active exception", ~1 exit in 15).
+        spinner = threading.Thread(target=executor.spin, name="bag_player-executor")
         spinner.start()
-        if opts.lockstep and not player.wait_for_subscribers(30.0):
-            player.get_logger().warn("nobody subscribes to the colour topic yet; playing anyway")
+        if opts.reset or opts.reset_service:
+            services = opts.reset_service or RESET_SERVICES
+            done = player.reset_slam(services)
+            player.get_logger().info(f"reset {', '.join(done) if done else 'nothing'} before playing")
+        if not player.wait_for_subscribers(opts.wait):
+            player.get_logger().warn(
+                f"nobody subscribes to {player.topics.color} after {opts.wait:g} s; playing anyway"
+            )
         stats = player.play()
         player.get_logger().info(
             f"done: {stats.frames} frames, {stats.messages} messages, {stats.lockstep_timeouts} timeouts"
@@ -231,6 +274,8 @@ def main(args: list[str] | None = None) -> int:
         if player is not None:
             player.stop()
         executor.shutdown()
+        if spinner is not None:
+            spinner.join(timeout=10.0)
         if player is not None:
             player.destroy_node()
         rclpy.try_shutdown()

@@ -1,4 +1,4 @@
-"""A small /diagnostics publisher (diagnostic_updater is not on PyPI)."""
+"""A small /diagnostics publisher (diagnostic_updater is not on PyPI), on the steady clock."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 
 from sgs_slam_ros.messages import header
+from sgs_slam_ros.timers import steady_timer
 
 __all__ = ["Diagnostics", "RateMeter"]
 
@@ -41,12 +42,12 @@ class RateMeter:
 
 
 class Diagnostics:
-    """Publishes one DiagnosticStatus for ``node`` at 1 Hz on /diagnostics."""
+    """Publishes one DiagnosticStatus for ``node`` at 1 Hz (wall clock) on /diagnostics."""
 
     def __init__(self, node: Node, collect: Callable[[], tuple[int, str, dict[str, str]]]) -> None:
         self.node, self.collect = node, collect
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.timer = node.create_timer(1.0, self.publish)
+        self.timer = steady_timer(node, 1.0, self.publish)
         self.last_status: DiagnosticStatus | None = None
 
     def publish(self) -> None:

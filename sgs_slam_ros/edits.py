@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import math
 
-from rclpy.node import Node
-
 from sgs_slam_core.editing import EditError, EditKind, EditRequest, Selection
-from sgs_slam_ros.params import current
+from sgs_slam_ros.params import NodeParams
 
 __all__ = ["requested_edits"]
 
@@ -17,24 +15,24 @@ def _label(text: str) -> int | str:
     return int(text) if text.lstrip("-").isdigit() else text
 
 
-def _vector(node: Node, name: str) -> tuple[float, float, float]:
-    values = [float(v) for v in current(node, name, [0.0, 0.0, 0.0])]
+def _vector(params: NodeParams, name: str) -> tuple[float, float, float]:
+    values = [float(v) for v in params[name]]
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
         raise EditError(f"{name} needs 3 finite numbers, got {values}")
     return values[0], values[1], values[2]
 
 
-def requested_edits(node: Node) -> list[EditRequest]:
+def requested_edits(params: NodeParams) -> list[EditRequest]:
     """The edits the parameters describe now: a removal, then a move (either may be absent)."""
-    instance = int(current(node, "edit.instance", -1))
+    instance = int(params["edit.instance"])
     pick = None if instance < 0 else instance
     edits = []
-    remove = [_label(t) for t in current(node, "edit.remove_labels", []) if t.strip()]
+    remove = [_label(t) for t in params["edit.remove_labels"]]
     if remove:
         edits.append(EditRequest(EditKind.REMOVE, Selection(tuple(remove), instance=pick)))
-    move = str(current(node, "edit.move_label", "")).strip()
+    move = str(params["edit.move_label"]).strip()
     if move:
-        translation, rotation = _vector(node, "edit.translation"), _vector(node, "edit.rotation_deg")
+        translation, rotation = _vector(params, "edit.translation"), _vector(params, "edit.rotation_deg")
         edits.append(EditRequest(EditKind.MOVE, Selection((_label(move),), instance=pick), translation, rotation))
     if not edits:
         raise EditError("nothing to apply: set edit.remove_labels and/or edit.move_label first")

@@ -1,13 +1,15 @@
 """Assemble synchronised RGB, depth, labels and camera_info messages into core Frames.
 
 Bad input never raises out of a callback: each cause is logged once (with a running count),
-counted for /diagnostics, and the frame is dropped.
+counted for /diagnostics, and the frame is dropped. Every colour image is accounted for: it becomes
+a frame, is dropped by the synchroniser (no partner in time, or pushed out of its queue), is
+rejected (bad input), or still waits (``colour_in == emitted + colour_dropped + rejected + waiting``).
 """
 
 from __future__ import annotations
 
 import threading
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from typing import Any
 
@@ -63,6 +65,26 @@ class FrameAssembler:
         self._lock = threading.Lock()
         self._waiting: list[tuple[int, list[Any]]] = []  # synchronised sets that arrived before any camera_info
         self._queue_size = queue_size
+        self.frame_id = ""  # header.frame_id of the latest colour image that became a frame
+        self.colour_in = 0  # colour images received
+        self.colour_dropped = 0  # colour images the synchroniser dropped
+        self._colour_queue: deque[int] = deque()  # ids of the colour messages the synchroniser holds
+
+    @property
+    def frames_waiting(self) -> int:
+        """Colour images held by the synchroniser or waiting for camera_info."""
+        with self._lock:
+            return len(self._colour_queue) + len(self._waiting)
+
+    @property
+    def frames_rejected(self) -> int:
+        """Synchronised sets dropped as bad input."""
+        return sum(self.rejected.values())
+
+    def set_slop(self, slop_s: float) -> None:
+        """Change the synchroniser's tolerance (s) live."""
+        with self._lock:
+            self.sync.slop_ns = round(slop_s * 1e9)
 
     def reject(self, cause: str, detail: str = "") -> None:
         """Count a dropped input; log the first time this cause occurs."""
@@ -93,7 +115,17 @@ class FrameAssembler:
         """An rgb (0), depth (1) or semantic (2) image."""
         self.received[("rgb", "depth", "semantic")[index]] += 1
         with self._lock:
+            if index == RGB:
+                self.colour_in += 1
+                self._colour_queue.append(id(msg))
+                if len(self._colour_queue) > self.sync.queue_size:  # the synchroniser drops the oldest too
+                    self._colour_queue.popleft()
+                    self.colour_dropped += 1
             matched = self.sync.push(index, stamp_to_ns(msg.header.stamp), msg)
+            if matched is not None:  # colour images older than the matched one are dropped by the synchroniser
+                emitted = id(matched[1][RGB])
+                while self._colour_queue and self._colour_queue.popleft() != emitted:
+                    self.colour_dropped += 1
         if matched is not None:
             self._assemble(*matched)
 
@@ -113,12 +145,17 @@ class FrameAssembler:
             self.reject(rejected.cause, rejected.detail)
             return
         self.last_stamp_ns = stamp_ns
+        self.frame_id = msgs[RGB].header.frame_id
         self.on_frame(frame)
 
     def _build(self, stamp_ns: int, msgs: list[Any], k: Intrinsics) -> Frame:
         """The Frame of one synchronised set; raises :class:`_RejectedError` naming the cause."""
         if self.last_stamp_ns is not None and stamp_ns < self.last_stamp_ns:
-            raise _RejectedError("stamps went backwards", f"{stamp_ns} < {self.last_stamp_ns} ns")
+            raise _RejectedError(
+                "stamps went backwards",
+                f"{stamp_ns} < {self.last_stamp_ns} ns (a replay started again? call ~/reset first, "
+                "e.g. bag_player --reset)",
+            )
         try:
             rgb = rgb_from_image(msgs[RGB])
             depth = depth_from_image(msgs[DEPTH], self.depth_scale)
@@ -147,5 +184,8 @@ class FrameAssembler:
         """Forget queued messages and the last stamp (after a SLAM reset)."""
         with self._lock:
             self.sync.clear()
+            self.colour_dropped += len(self._colour_queue)
+            self._colour_queue.clear()
+            self.colour_dropped += len(self._waiting)
             self._waiting.clear()
         self.last_stamp_ns = None

@@ -1,10 +1,12 @@
 """``mapping_node``: owns the Gaussian map; publishes renders, point clouds and the map itself.
 
-Outputs: ``~/render/color`` (rgb8), ``~/render/semantic`` (rgb8 palette), ``~/render/labels``
-(16UC1 ids), ``~/render/depth`` (32FC1 m) from the latest pose; ``~/points`` (PointCloud2 x, y, z,
-rgb, label); ``~/gaussians`` (PointCloud2 with every Gaussian field, transient local);
-``/diagnostics``. Services: ``~/save_map``, ``~/load_map`` (Trigger, file from ``map_path``),
-``~/reset`` (Trigger), ``~/pause`` (SetBool), ``~/apply_edit`` (Trigger: the edit the ``edit.*``
+Outputs, each published after new work (a mapped frame, an edit, a load) and at most at its rate:
+``~/render/color`` (rgb8), ``~/render/semantic`` (rgb8 palette), ``~/render/labels`` (16UC1 ids),
+``~/render/depth`` (32FC1 m), rendered at the pose of the newest mapped frame with its stamp and
+camera frame id; ``~/points`` (PointCloud2 x, y, z, rgb, label) and ``~/gaussians`` (PointCloud2
+with every Gaussian field), both transient local (latched); ``/diagnostics``. Services:
+``~/save_map``, ``~/load_map`` (Trigger, file from ``map_path``), ``~/reset`` (Trigger: also
+publishes the empty map), ``~/pause`` (SetBool), ``~/apply_edit`` (Trigger: the edit the ``edit.*``
 parameters describe) and ``~/undo_edit`` (Trigger: revert the last edit and unlock its classes).
 Standalone (``pose_source:=topic``) it subscribes the camera topics and ``tracking_node/pose`` and
 maps frames whose stamps match a pose exactly.
@@ -13,9 +15,10 @@ maps frames whose stamps match a pose exactly.
 from __future__ import annotations
 
 import threading
-import time
 from collections import OrderedDict
+from collections.abc import Callable
 from pathlib import Path as FilePath
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -24,6 +27,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_srvs.srv import SetBool, Trigger
 
+from bags.layout import CAMERA_FRAME
 from msg_adapters import AdapterError, gaussians_to_cloud, pack_rgb, pose_to_c2w, stamp_to_ns
 from msg_adapters.pointcloud import POINT_DTYPE
 from sgs_slam_core.errors import SgsSlamError
@@ -34,10 +38,12 @@ from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
 from sgs_slam_ros.diagnostics import Diagnostics, RateMeter
 from sgs_slam_ros.edits import requested_edits
 from sgs_slam_ros.frames import FrameAssembler
+from sgs_slam_ros.inputs import InputWatch
 from sgs_slam_ros.messages import image_msg, pointcloud_msg
 from sgs_slam_ros.params import COMMON, EDIT, MAPPING, declare, slam_config
 from sgs_slam_ros.qos import input_qos, latched_qos, output_qos
 from sgs_slam_ros.runtime import run_nodes
+from sgs_slam_ros.timers import Throttled
 
 __all__ = ["MappingNode", "main"]
 
@@ -45,17 +51,36 @@ OK, WARN = 0, 1
 _PENDING = 64  # frames / poses kept while waiting for their partner (standalone)
 
 
+class _View(NamedTuple):
+    """What the renders show: the newest mapped frame's pose, stamp and camera frame."""
+
+    stamp_ns: int
+    c2w: np.ndarray  # [4, 4]
+    frame_id: str
+
+
 class MappingNode(Node):
     """Maps tracked frames (shared pipeline in slam_node, or standalone with poses from a topic)."""
 
-    def __init__(self, pipeline: SlamPipeline | None = None, **kwargs: object) -> None:
+    def __init__(
+        self, pipeline: SlamPipeline | None = None, camera_frame: Callable[[], str] | None = None, **kwargs: object
+    ) -> None:
+        """``pipeline``: share a composed tracking node's; ``camera_frame``: its camera frame id."""
         super().__init__("mapping_node", **kwargs)
         self.params = declare(self, COMMON + MAPPING + EDIT)
         self.map_frame = self.params["map_frame"]
         self._owns_pipeline = pipeline is None
+        self._camera_frame = camera_frame
         self.mapped_rate = RateMeter()
         self.last_mapped_stamp = -1
+        self._view: _View | None = None
         self._render_lock = threading.Lock()
+        self.assembler: FrameAssembler | None = None
+        self.watch: InputWatch | None = None
+        self.reset_listeners: list[Callable[[], None]] = []  # e.g. the composed tracking node's state
+        self._frames: OrderedDict[int, Frame] = OrderedDict()  # standalone: frames waiting for their pose
+        self._poses: OrderedDict[int, np.ndarray] = OrderedDict()  # and poses waiting for their frame
+        self._pair_lock = threading.Lock()
         if pipeline is None:
             pipeline = SlamPipeline(Slam(slam_config(self.params)), self.params["lockstep"], track=False, map=True,
                                     log=self.get_logger().error)  # fmt: skip
@@ -67,13 +92,14 @@ class MappingNode(Node):
         self.semantic_pub = self.create_publisher(Image, "~/render/semantic", out)
         self.labels_pub = self.create_publisher(Image, "~/render/labels", out)
         self.depth_pub = self.create_publisher(Image, "~/render/depth", out)
-        self.points_pub = self.create_publisher(PointCloud2, "~/points", output_qos(1))
+        self.points_pub = self.create_publisher(PointCloud2, "~/points", latched_qos())
         self.gaussians_pub = self.create_publisher(PointCloud2, "~/gaussians", latched_qos())
-        for rate, callback in ((self.params["render_rate_hz"], self.publish_renders),
-                               (self.params["points_rate_hz"], self.publish_points),
-                               (self.params["gaussians_rate_hz"], self.publish_gaussians)):  # fmt: skip
-            if rate > 0:
-                self.create_timer(1.0 / rate, callback)
+        self.renders = Throttled(self, self.params["render_rate_hz"], self.publish_renders)
+        self.points_out = Throttled(self, self.params["points_rate_hz"], self.publish_points)
+        self.gaussians_out = Throttled(self, self.params["gaussians_rate_hz"], self.publish_gaussians)
+        self.params.on_change["render_rate_hz"] = self.renders.set_rate
+        self.params.on_change["points_rate_hz"] = self.points_out.set_rate
+        self.params.on_change["gaussians_rate_hz"] = self.gaussians_out.set_rate
         self.create_service(Trigger, "~/save_map", self._save_map)
         self.create_service(Trigger, "~/load_map", self._load_map)
         self.create_service(Trigger, "~/reset", self._reset)
@@ -84,19 +110,31 @@ class MappingNode(Node):
 
     # ------------------------------------------------------------------ standalone inputs
     def _subscribe_inputs(self) -> None:
-        self.assembler = FrameAssembler(
+        assembler = FrameAssembler(
             self.params["use_semantics"], self.params["sync_queue_size"], round(self.params["sync_slop_s"] * 1e9),
             self.params["depth_scale"], self._on_frame, self.get_logger().warn,
         )  # fmt: skip
+        self.assembler = assembler
+        self.params.on_change["sync_slop_s"] = assembler.set_slop
+        self.params.on_change["depth_scale"] = lambda v: setattr(assembler, "depth_scale", v)
         qos = input_qos(self.params["input_qos"], self.params["sync_queue_size"])
-        topics = ["rgb/image", "depth/image", *(["semantic/image"] if self.params["use_semantics"] else [])]
-        for i, topic in enumerate(topics):
-            self.create_subscription(Image, topic, lambda msg, i=i: self.assembler.image(i, msg), qos)
-        self.create_subscription(CameraInfo, "rgb/camera_info", self.assembler.camera_info, qos)
+        names = ["rgb", "depth", *(["semantic"] if self.params["use_semantics"] else [])]
+        for i, name in enumerate(names):
+            self.create_subscription(Image, f"{name}/image", lambda msg, i=i, n=name: self._image(i, n, msg), qos)
+        self.create_subscription(CameraInfo, "rgb/camera_info", self._camera_info, qos)
         self.create_subscription(PoseStamped, "tracking_node/pose", self._on_pose, output_qos(50))
-        self._frames: OrderedDict[int, Frame] = OrderedDict()
-        self._poses: OrderedDict[int, np.ndarray] = OrderedDict()
-        self._pair_lock = threading.Lock()
+        topics = {n: self.resolve_topic_name(f"{n}/image") for n in names}
+        topics["camera_info"] = self.resolve_topic_name("rgb/camera_info")
+        topics["pose"] = self.resolve_topic_name("tracking_node/pose")
+        self.watch = InputWatch(topics, self.get_logger().warn, {"pose": "is tracking_node running?"})
+
+    def _image(self, index: int, name: str, msg: Image) -> None:
+        self.watch.tick(name)
+        self.assembler.image(index, msg)
+
+    def _camera_info(self, msg: CameraInfo) -> None:
+        self.watch.tick("camera_info")
+        self.assembler.camera_info(msg)
 
     def _on_frame(self, frame: Frame) -> None:
         with self._pair_lock:
@@ -104,6 +142,7 @@ class MappingNode(Node):
             self._pair()
 
     def _on_pose(self, msg: PoseStamped) -> None:
+        self.watch.tick("pose")
         try:
             c2w = pose_to_c2w(msg)
         except AdapterError as err:
@@ -122,37 +161,49 @@ class MappingNode(Node):
                 self.pipeline.stats.dropped_frames += 1
 
     # ------------------------------------------------------------------ outputs
+    def camera_frame(self) -> str:
+        """Frame id of the camera: the parameter, else the input's header (composed: the tracker's)."""
+        if self.params["camera_frame"]:
+            return self.params["camera_frame"]
+        if self._camera_frame is not None:
+            return self._camera_frame()
+        return (self.assembler.frame_id if self.assembler else "") or CAMERA_FRAME
+
     def _on_mapped(self, frame: Frame, tracked: TrackOutcome, result: MapOutcome) -> None:
         if not self.context.ok():  # shutting down: the publishers are gone
             return
         self.mapped_rate.tick()
         self.last_mapped_stamp = tracked.stamp_ns
+        self._view = _View(tracked.stamp_ns, np.array(tracked.c2w, dtype=np.float64), self.camera_frame())
+        self._map_changed()
         if self.params["lockstep"]:
-            self.publish_gaussians()  # a tracker in another process waits for this map
+            self.gaussians_out.now()  # a tracker in another process waits for this map
 
-    def _latest_pose(self) -> tuple[int, np.ndarray] | None:
-        trajectory = self.pipeline.slam.trajectory
-        return (trajectory[-1][1], trajectory[-1][2]) if trajectory else None
+    def _map_changed(self) -> None:
+        """New content: each output publishes it once, at most at its rate."""
+        self.renders.mark()
+        self.points_out.mark()
+        self.gaussians_out.mark()
 
-    def publish_renders(self) -> None:
-        """Render the map from the latest pose and publish colour, semantics, labels and depth."""
-        slam, latest = self.pipeline.slam, self._latest_pose()
-        if latest is None or slam.num_gaussians == 0 or slam.intrinsics is None:
-            return
-        stamp, c2w = latest
+    def publish_renders(self) -> bool:
+        """Render the map from the newest mapped frame's pose; publish colour, semantics, labels, depth."""
+        slam, view = self.pipeline.slam, self._view
+        if view is None or slam.num_gaussians == 0 or slam.intrinsics is None:
+            return False
         with self._render_lock, torch.no_grad():
-            out = slam.render_view(c2w)
+            out = slam.render_view(view.c2w)
             color = (out.color.clamp(0, 1) * 255).round().to(torch.uint8).cpu().numpy()
             labels = (
                 slam.decode(out.semantic).cpu().numpy() if out.semantic.shape[-1] else np.zeros(color.shape[:2], int)
             )
             labels = np.where(out.silhouette.cpu().numpy() > 0.5, labels, 0)
             depth = out.depth.cpu().numpy().astype(np.float32)
-        frame_id = "camera_color_optical_frame"
+        stamp, frame_id = view.stamp_ns, view.frame_id
         self.color_pub.publish(image_msg(color, "rgb8", stamp, frame_id))
         self.semantic_pub.publish(image_msg(slam.codec.table.colorize(labels), "rgb8", stamp, frame_id))
         self.labels_pub.publish(image_msg(labels.astype(np.uint16), "16UC1", stamp, frame_id))
         self.depth_pub.publish(image_msg(depth, "32FC1", stamp, frame_id))
+        return True
 
     def points(self) -> np.ndarray:
         """The map as coloured, labelled points (every Gaussian centre, subsampled to ``points_max``)."""
@@ -165,24 +216,24 @@ class MappingNode(Node):
         pts["label"] = g.labels[::step].numpy().astype(np.uint32)
         return pts
 
-    def publish_points(self) -> None:
-        """Publish ``~/points``."""
-        if self.pipeline.slam.num_gaussians:
-            self.points_pub.publish(pointcloud_msg(self.points(), self._stamp(), self.map_frame))
+    def publish_points(self) -> bool:
+        """Publish ``~/points`` (empty after a reset, so latched viewers clear)."""
+        self.points_pub.publish(pointcloud_msg(self.points(), self._stamp(), self.map_frame))
+        return True
 
-    def publish_gaussians(self) -> None:
+    def publish_gaussians(self) -> bool:
         """Publish the whole map on ``~/gaussians`` (stamp = the last mapped frame)."""
-        if self.pipeline.slam.num_gaussians:
-            cloud = gaussians_to_cloud(self.pipeline.slam.gaussians)
-            self.gaussians_pub.publish(pointcloud_msg(cloud, max(self.last_mapped_stamp, 0), self.map_frame))
+        cloud = gaussians_to_cloud(self.pipeline.slam.gaussians)
+        self.gaussians_pub.publish(pointcloud_msg(cloud, self._stamp(), self.map_frame))
+        return True
 
     def _stamp(self) -> int:
-        latest = self._latest_pose()
-        return latest[0] if latest else self.get_clock().now().nanoseconds
+        """The newest mapped frame's stamp (the node's clock before the first)."""
+        return self.last_mapped_stamp if self.last_mapped_stamp >= 0 else self.get_clock().now().nanoseconds
 
     # ------------------------------------------------------------------ services
     def _save_map(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        path = FilePath(self.get_parameter("map_path").value)
+        path = FilePath(self.params["map_path"])
         try:
             with self.pipeline.exclusive():
                 m = self.pipeline.slam.to_map_file()
@@ -193,14 +244,19 @@ class MappingNode(Node):
         return response
 
     def _load_map(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        path = FilePath(self.get_parameter("map_path").value)
+        path = FilePath(self.params["map_path"])
         try:
             saved = load_map(path, self.pipeline.slam.device)
             with self.pipeline.exclusive():
                 self.pipeline.slam.load_map(saved)
-            if getattr(self, "assembler", None):
+            if self.assembler is not None:
                 self.assembler.reset()
-            self.publish_gaussians()
+            if saved.trajectory:  # render the loaded map from its last pose until new frames are mapped
+                _, stamp, c2w = saved.trajectory[-1]
+                self.last_mapped_stamp = stamp
+                self._view = _View(stamp, np.asarray(c2w, dtype=np.float64), self.camera_frame())
+            self._map_changed()
+            self.gaussians_out.now()
             response.success, response.message = True, f"loaded {len(saved.gaussians)} Gaussians from {path}"
         except (OSError, SgsSlamError, TimeoutError) as err:
             response.success, response.message = False, f"cannot load {path}: {err}"
@@ -209,7 +265,7 @@ class MappingNode(Node):
     def _apply_edit(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         done = []
         try:
-            edits = requested_edits(self)
+            edits = requested_edits(self.params)
             with self.pipeline.exclusive():
                 for edit in edits:
                     done.append(self.pipeline.slam.apply_edit(edit).summary())
@@ -236,17 +292,32 @@ class MappingNode(Node):
             self.get_logger().info(response.message)
         else:
             self.get_logger().warn(response.message)
-        self.publish_gaussians()  # the edited map, right away
-        self.publish_points()
-        self.publish_renders()
+        if response.success:  # the edited map right away, the rest at their rates
+            self._map_changed()
+            self.gaussians_out.now()
 
     def _reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success = self.pipeline.reset()
-        if getattr(self, "assembler", None):
-            self.assembler.reset()
-        self.last_mapped_stamp = -1
+        self.after_reset()
+        for listener in self.reset_listeners:
+            listener()
         response.message = "map cleared" if response.success else "timed out waiting for the workers"
+        self.get_logger().info(f"~/reset: {response.message}")
         return response
+
+    def after_reset(self) -> None:
+        """Forget this node's per-run state and publish the empty map (latched viewers clear)."""
+        if self.assembler is not None:
+            self.assembler.reset()
+        if self.watch is not None:
+            self.watch.reset()
+        with self._pair_lock:
+            self._frames.clear()
+            self._poses.clear()
+        self.last_mapped_stamp = -1
+        self._view = None
+        self.points_out.now()
+        self.gaussians_out.now()
 
     def _pause(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
         self.pipeline.pause(bool(request.data))
@@ -261,19 +332,26 @@ class MappingNode(Node):
         values = {
             "processing_rate_hz": f"{self.mapped_rate.rate():.2f}",
             "frames_mapped": str(st.mapped),
-            "queue_drops": str(st.dropped_jobs + st.dropped_frames),
+            "jobs_dropped": str(st.dropped_jobs),
             "gaussians": str(self.pipeline.slam.num_gaussians),
             "keyframes": str(len(self.pipeline.slam.keyframes)),
             "tracking_failures": str(st.tracking_failures),
             "locked_classes": " ".join(str(i) for i in sorted(self.pipeline.slam.locked_labels)) or "none",
             "undoable_edits": str(self.pipeline.slam.edits.depth),
+            "renders_published": str(self.renders.count),
         }
-        assembler = getattr(self, "assembler", None)
-        if assembler is not None:
-            values["dropped_bad_input"] = str(sum(assembler.rejected.values()))
-            idle = time.monotonic() - self.mapped_rate.last if self.mapped_rate.last else None
-            if idle is None or idle > self.params["stale_input_s"]:
-                level, message = WARN, "no frame mapped recently: waiting for images and tracking_node/pose"
+        if self.assembler is not None and self.watch is not None:  # standalone: its own inputs
+            stale = self.params["stale_input_s"]
+            silent = self.watch.silent(stale)
+            values["frames_in"] = str(self.assembler.colour_in)
+            values["frames_dropped"] = str(st.dropped_frames + self.assembler.colour_dropped)
+            values["frames_rejected"] = str(self.assembler.frames_rejected)
+            values["silent_inputs"] = ", ".join(self.watch.topics[n] for n in silent) or "none"
+            if self.watch.all_silent(stale):
+                level, message = WARN, f"no input: waiting for {', '.join(self.watch.topics.values())}"
+            elif silent:
+                names = ", ".join(self.watch.topics[n] for n in silent)
+                level, message = WARN, f"nothing mapped: {names} silent while the others arrive"
         return level, message, values
 
     def close(self) -> None:

@@ -1,23 +1,42 @@
-"""Node parameters: one declaration each, with a description, a range or choices, and a default.
+"""Node parameters: one declaration each, with a value, a description, a range or choices.
 
-All core settings are reachable through ``preset``, ``config_file`` and ``overrides`` (``key=value``
-strings, e.g. ``tracking.iterations=30``), resolved exactly like ``sgs-slam run``.
+Every parameter is either read-only (fixed at start-up: ``ros2 param describe`` says so) or applied
+live: :class:`NodeParams` keeps ``values`` current and calls the node's hooks after a successful
+``set``. All core settings are reachable through ``preset``, ``config_file`` and ``overrides``
+(``key=value`` strings, e.g. ``tracking.iterations=30``), resolved exactly like ``sgs-slam run``.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.exceptions import ParameterUninitializedException
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from sgs_slam_core.config import SlamConfig, load_config
+from sgs_slam_core.geometry.gravity import OPTICAL_IN_BODY, MapAlignment
 from sgs_slam_ros.qos import INPUT_QOS_CHOICES
 
-__all__ = ["COMMON", "EDIT", "MAPPING", "TRACKING", "ParamSpec", "current", "declare", "slam_config"]
+__all__ = [
+    "COMMON",
+    "EDIT",
+    "MAPPING",
+    "TRACKING",
+    "NodeParams",
+    "ParamSpec",
+    "ParameterError",
+    "declare",
+    "slam_config",
+]
+
+
+class ParameterError(ValueError):
+    """A parameter given at start-up is unusable (wrong type, out of range, not a choice)."""
 
 
 @dataclass(frozen=True)
@@ -30,14 +49,22 @@ class ParamSpec:
     bounds: tuple[float, float] | None = None
     choices: tuple[str, ...] | None = None
     read_only: bool = False
-    kind: Parameter.Type | None = None  # for a default that does not tell the type (an empty array)
+    string_list: bool = False  # a list of strings, default empty (see _descriptor)
 
 
 COMMON = (
     ParamSpec("preset", "tum", "core config preset: replica, scannet, tum, synthetic, *_fast", read_only=True),
     ParamSpec("config_file", "", "YAML file applied after the preset ('' = none)", read_only=True),
+    ParamSpec(
+        "overrides",
+        [],
+        "core config overrides 'section.key=value' (a list, or one string)",
+        read_only=True,
+        string_list=True,
+    ),
     ParamSpec("device", "auto", "compute device", choices=("auto", "cpu", "cuda"), read_only=True),
-    ParamSpec("map_frame", "map", "frame id of poses, paths and clouds", read_only=True),
+    ParamSpec("map_frame", "map", "frame id of poses, paths, clouds and the /tf root", read_only=True),
+    ParamSpec("camera_frame", "", "frame id of the camera ('' = header.frame_id of rgb/image)", read_only=True),
     ParamSpec("input_qos", "best_effort", "image subscription QoS", choices=INPUT_QOS_CHOICES, read_only=True),
     ParamSpec("sync_queue_size", 10, "messages kept per input for synchronisation", bounds=(1, 1000), read_only=True),
     ParamSpec("sync_slop_s", 0.02, "max stamp difference of a synchronised set (s); 0 = exact", bounds=(0.0, 1.0)),
@@ -46,7 +73,7 @@ COMMON = (
     ParamSpec(
         "lockstep", False, "process every frame in order (replays, tests); else keep up by dropping", read_only=True
     ),
-    ParamSpec("stale_input_s", 5.0, "warn in /diagnostics after this long without input (s)", bounds=(0.5, 3600.0)),
+    ParamSpec("stale_input_s", 5.0, "/diagnostics warns when an input is silent this long (s)", bounds=(0.5, 3600.0)),
 )
 TRACKING = (
     ParamSpec(
@@ -57,6 +84,44 @@ TRACKING = (
         read_only=True,
     ),
     ParamSpec("path_max_length", 10000, "poses kept in ~/path", bounds=(1, 1000000)),
+    ParamSpec(
+        "map_alignment",
+        MapAlignment.FLOOR.value,
+        "map frame: 'floor' (z up, levelled on the first frame's floor, origin on the floor; 'mount' if "
+        "none is seen), 'mount' (z up: the first pose of base_frame, camera at camera_mount), 'optical' "
+        "(the first camera's optical frame, y down)",
+        choices=tuple(a.value for a in MapAlignment),
+        read_only=True,
+    ),
+    ParamSpec(
+        "camera_mount",
+        list(OPTICAL_IN_BODY),
+        "pose of the camera optical frame in base_frame: x y z (m) roll pitch yaw (rad), or x y z qx qy qz qw; "
+        "the default is a level, forward-looking camera",
+        read_only=True,
+    ),
+    ParamSpec(
+        "floor_max_tilt_deg",
+        30.0,
+        "floor levelling: max angle between the floor and camera_mount's up (deg)",
+        bounds=(1.0, 89.0),
+    ),
+    ParamSpec("publish_tf", True, "publish /tf (map -> camera, or map -> odom -> base_frame) and /tf_static"),
+    ParamSpec(
+        "base_frame", "", "body frame the camera is mounted on ('' = none: /tf is map -> camera)", read_only=True
+    ),
+    ParamSpec(
+        "publish_camera_mount",
+        True,
+        "publish base_frame -> camera (camera_mount) on /tf_static; false when the camera driver does (realsense)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "odom_frame",
+        "",
+        "with base_frame: publish map -> odom (identity) -> base_frame ('' = map -> base_frame)",
+        read_only=True,
+    ),
 )
 MAPPING = (
     ParamSpec(
@@ -66,21 +131,21 @@ MAPPING = (
         choices=("shared", "topic"),
         read_only=True,
     ),
-    ParamSpec("render_rate_hz", 2.0, "rate of ~/render/* (0 = off)", bounds=(0.0, 60.0)),
-    ParamSpec("points_rate_hz", 1.0, "rate of ~/points (0 = off)", bounds=(0.0, 30.0)),
+    ParamSpec(
+        "render_rate_hz", 2.0, "max rate of ~/render/* (one render per newly mapped frame; 0 = off)", bounds=(0.0, 60.0)
+    ),
+    ParamSpec("points_rate_hz", 1.0, "max rate of ~/points (after the map changed; 0 = off)", bounds=(0.0, 30.0)),
     ParamSpec(
         "gaussians_rate_hz",
         0.5,
-        "rate of ~/gaussians (0 = only on request; every frame in lockstep)",
+        "max rate of ~/gaussians (after the map changed; 0 = only after edits and loads; every frame in lockstep)",
         bounds=(0.0, 30.0),
     ),
     ParamSpec("points_max", 200000, "max points in ~/points (random subset beyond)", bounds=(100, 10000000)),
     ParamSpec("map_path", "map.sgsmap", "file used by ~/save_map and ~/load_map"),
 )
 EDIT = (  # read when ~/apply_edit is called
-    ParamSpec(
-        "edit.remove_labels", None, "classes (names or ids) that ~/apply_edit removes", kind=Parameter.Type.STRING_ARRAY
-    ),
+    ParamSpec("edit.remove_labels", [], "classes (names or ids) that ~/apply_edit removes", string_list=True),
     ParamSpec("edit.move_label", "", "class (name or id) that ~/apply_edit moves ('' = none)"),
     ParamSpec("edit.translation", [0.0, 0.0, 0.0], "translation of edit.move_label in the map frame (m, x y z)"),
     ParamSpec("edit.rotation_deg", [0.0, 0.0, 0.0], "rotation of edit.move_label about its centroid (deg, x y z)"),
@@ -95,7 +160,9 @@ EDIT = (  # read when ~/apply_edit is called
 
 def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     text = spec.description + (f" (one of: {', '.join(spec.choices)})" if spec.choices else "")
-    d = ParameterDescriptor(description=text, read_only=spec.read_only)
+    # rclpy infers BYTE_ARRAY from an empty list and cannot declare a typed empty STRING_ARRAY
+    # (ros2/rclpy#912): string lists are dynamically typed and checked by NodeParams instead.
+    d = ParameterDescriptor(description=text, read_only=spec.read_only, dynamic_typing=spec.string_list)
     if spec.bounds is not None and isinstance(spec.default, float):
         d.floating_point_range = [FloatingPointRange(from_value=spec.bounds[0], to_value=spec.bounds[1], step=0.0)]
     elif spec.bounds is not None and isinstance(spec.default, int) and not isinstance(spec.default, bool):
@@ -103,37 +170,92 @@ def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     return d
 
 
-def declare(node: Node, specs: tuple[ParamSpec, ...]) -> dict[str, Any]:
-    """Declare ``specs`` on ``node`` and return their values; a bad choice raises ``ValueError``."""
-    values = {}
-    for spec in specs:
-        if spec.kind is not None and spec.default is None:
-            node.declare_parameter(spec.name, spec.kind, _descriptor(spec))
-            values[spec.name] = current(node, spec.name, [])
-            continue
-        values[spec.name] = node.declare_parameter(spec.name, spec.default, _descriptor(spec)).value
-        if spec.choices and values[spec.name] not in spec.choices:
-            raise ValueError(f"parameter {spec.name}: {values[spec.name]!r} is not one of {', '.join(spec.choices)}")
-    if not node.has_parameter("overrides"):
-        node.declare_parameter(
-            "overrides",
-            Parameter.Type.STRING_ARRAY,
-            ParameterDescriptor(description="core config overrides 'section.key=value'", read_only=True),
-        )
-    values["overrides"] = [s for s in current(node, "overrides", []) if s]
-    return values
+def _string_list(spec: ParamSpec, value: Any) -> list[str]:
+    """A string-list parameter's value: a list of strings, one string (split on whitespace), or empty."""
+    if isinstance(value, str):
+        return value.split()
+    if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
+        return [v for v in value if v.strip()]
+    if isinstance(value, (list, tuple, bytes)) and len(value) == 0:
+        return []
+    raise ParameterError(f"parameter {spec.name}: expected a list of strings, got {value!r}")
 
 
-def current(node: Node, name: str, unset: Any) -> Any:
-    """The parameter's value now, ``unset`` if it was declared without a value and never set."""
-    try:
-        value = node.get_parameter(name).value
-    except ParameterUninitializedException:
-        return unset
-    return unset if value is None else value
+def _check(spec: ParamSpec, value: Any) -> Any:
+    """The usable value of ``spec`` or :class:`ParameterError` (what rclpy itself does not check)."""
+    if spec.string_list:
+        return _string_list(spec, value)
+    if spec.choices and value not in spec.choices:
+        raise ParameterError(f"parameter {spec.name}: {value!r} is not one of {', '.join(spec.choices)}")
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ParameterError(f"parameter {spec.name}: {value} is not a finite number")
+    return value
 
 
-def slam_config(values: dict[str, Any]) -> SlamConfig:
+def _type_hint(spec: ParamSpec, err: ParameterException) -> str:
+    if isinstance(spec.default, float):
+        return f"parameter {spec.name}: expected a floating-point number (write {spec.default!r}, not an integer)"
+    kind = type(spec.default).__name__
+    return f"parameter {spec.name}: expected {kind} like {spec.default!r} ({err})"
+
+
+class NodeParams:
+    """Declares ``specs`` on a node, keeps ``values`` current, and applies live changes.
+
+    ``on_change[name](value)`` runs after a successful ``set`` of ``name`` (read-only parameters
+    cannot be set). A set that fails validation is refused with the reason.
+    """
+
+    def __init__(self, node: Node, specs: tuple[ParamSpec, ...]) -> None:
+        self.node = node
+        self.specs = {s.name: s for s in specs}
+        self.values: dict[str, Any] = {}
+        self.on_change: dict[str, Callable[[Any], None]] = {}
+        for spec in specs:
+            try:
+                declared = node.declare_parameter(spec.name, spec.default, _descriptor(spec)).value
+            except ParameterException as err:  # wrong type or out of range: one clear line
+                if "type" in type(err).__name__.lower() or "type" in str(err).lower():
+                    raise ParameterError(_type_hint(spec, err)) from err
+                if spec.bounds is not None and "range" in str(err):
+                    lo, hi = spec.bounds
+                    raise ParameterError(f"parameter {spec.name}: out of range (allowed: {lo} to {hi})") from err
+                raise ParameterError(f"parameter {spec.name}: {err}") from err
+            self.values[spec.name] = _check(spec, declared)
+        node.add_on_set_parameters_callback(self._validate)
+        node.add_post_set_parameters_callback(self._apply)
+
+    def __getitem__(self, name: str) -> Any:
+        return self.values[name]
+
+    def _validate(self, params: list[Parameter]) -> SetParametersResult:
+        for p in params:
+            spec = self.specs.get(p.name)
+            if spec is None:
+                continue
+            try:
+                _check(spec, p.value)
+            except ParameterError as err:
+                return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def _apply(self, params: list[Parameter]) -> None:
+        for p in params:
+            spec = self.specs.get(p.name)
+            if spec is None:
+                continue
+            self.values[p.name] = _check(spec, p.value)
+            hook = self.on_change.get(p.name)
+            if hook is not None:
+                hook(self.values[p.name])
+
+
+def declare(node: Node, specs: tuple[ParamSpec, ...]) -> NodeParams:
+    """Declare ``specs`` on ``node``; a bad value given at start-up raises :class:`ParameterError`."""
+    return NodeParams(node, specs)
+
+
+def slam_config(values: NodeParams) -> SlamConfig:
     """The core config from the node's parameters (preset, file, overrides, device)."""
     return load_config(
         values["preset"], values["config_file"] or None, [*values["overrides"], f"device={values['device']}"]

@@ -17,9 +17,19 @@ __all__ = ["build_slam_nodes", "main"]
 
 
 def build_slam_nodes(**node_kwargs: object) -> list[Node]:
-    """The composed pair: the tracking node owns the pipeline, the mapping node shares it."""
+    """The composed pair: the tracking node owns the pipeline, the mapping node shares it.
+
+    A ``~/reset`` of either node resets the shared pipeline and both nodes' state.
+    """
     tracking = TrackingNode(standalone=False, **node_kwargs)
-    mapping = MappingNode(pipeline=tracking.pipeline, **node_kwargs)
+    try:
+        mapping = MappingNode(pipeline=tracking.pipeline, camera_frame=tracking.camera_frame, **node_kwargs)
+    except Exception:
+        tracking.close()
+        tracking.destroy_node()
+        raise
+    tracking.reset_listeners.append(mapping.after_reset)
+    mapping.reset_listeners.append(tracking.after_reset)
     return [tracking, mapping]
 
 

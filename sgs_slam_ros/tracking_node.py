@@ -1,15 +1,18 @@
-"""``tracking_node``: synchronises the camera topics and publishes the camera pose and path.
+"""``tracking_node``: synchronises the camera topics and publishes the camera pose, path and /tf.
 
 Inputs (relative, remappable): ``rgb/image``, ``depth/image``, ``semantic/image`` (with
 ``use_semantics``), ``rgb/camera_info``; standalone with ``map_source:=topic`` it also follows
 ``mapping_node/gaussians``. Outputs: ``~/pose`` (PoseStamped in ``map_frame``), ``~/path``,
-``/diagnostics``; service ``~/reset`` (Trigger).
+``/tf`` + ``/tf_static`` (``map -> camera``, or ``map [-> odom] -> base_frame -> camera``),
+``/diagnostics``; service ``~/reset`` (Trigger). The map frame is z-up by default
+(``map_alignment``).
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
@@ -17,23 +20,33 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_srvs.srv import Trigger
 
+from bags.layout import CAMERA_FRAME
 from msg_adapters import AdapterError, gaussians_from_cloud, pointcloud_to_numpy, stamp_to_ns
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
+from sgs_slam_core.geometry.gravity import FloorSettings, MapAlignment, initial_map_pose, pose_from_xyz_rpy
 from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.slam.system import Slam, TrackOutcome
 from sgs_slam_ros.diagnostics import Diagnostics, RateMeter
 from sgs_slam_ros.frames import FrameAssembler
+from sgs_slam_ros.inputs import InputWatch
 from sgs_slam_ros.messages import path_msg, pose_msg
-from sgs_slam_ros.params import COMMON, TRACKING, declare, slam_config
+from sgs_slam_ros.params import COMMON, TRACKING, ParameterError, declare, slam_config
 from sgs_slam_ros.qos import input_qos, latched_qos, output_qos
 from sgs_slam_ros.runtime import run_nodes
+from sgs_slam_ros.tf import TfFrames, TfPublisher
 
 __all__ = ["TrackingNode", "main"]
 
 _REPUBLISH_S = 1.0  # s: lockstep with a remote mapper re-sends the last pose this often while waiting for its map
 
 OK, WARN, ERROR = 0, 1, 2
+
+SILENT_HINTS = {
+    "semantic": "no labels, no frames: run the segmentation node, remap semantic/image, or set use_semantics:=false",
+    "camera_info": "remap rgb/camera_info to the colour camera's camera_info",
+    "depth": "remap depth/image to the depth image registered to colour (e.g. aligned_depth_to_color/image_raw)",
+}
 
 
 class TrackingNode(Node):
@@ -48,8 +61,15 @@ class TrackingNode(Node):
         super().__init__("tracking_node", **kwargs)
         self.params = declare(self, COMMON + TRACKING)
         self.map_frame = self.params["map_frame"]
+        try:
+            self.mount = pose_from_xyz_rpy(self.params["camera_mount"])
+        except SgsSlamError as err:
+            raise ParameterError(f"parameter camera_mount: {err}") from err
+        self.alignment = MapAlignment(self.params["map_alignment"])
+        self._aligned = False  # the first pose of this run is chosen (see _align)
         self._remote_map_stamp = -1
         self._last_pose_sent = time.monotonic()
+        self.reset_listeners: list[Callable[[], None]] = []  # e.g. the composed mapping node's outputs
         slam = Slam(slam_config(self.params))
         log = self.get_logger().error
         if standalone:
@@ -68,31 +88,73 @@ class TrackingNode(Node):
             self.params["use_semantics"], self.params["sync_queue_size"], round(self.params["sync_slop_s"] * 1e9),
             self.params["depth_scale"], self._on_frame, self.get_logger().warn,
         )  # fmt: skip
+        self.params.on_change["sync_slop_s"] = self.assembler.set_slop
+        self.params.on_change["depth_scale"] = lambda v: setattr(self.assembler, "depth_scale", v)
         qos = input_qos(self.params["input_qos"], self.params["sync_queue_size"])
-        self.topics = ["rgb/image", "depth/image", *(["semantic/image"] if self.params["use_semantics"] else [])]
-        for i, topic in enumerate(self.topics):
-            self.create_subscription(Image, topic, lambda msg, i=i: self._image(i, msg), qos)
-        self.create_subscription(CameraInfo, "rgb/camera_info", self.assembler.camera_info, qos)
+        names = ["rgb", "depth", *(["semantic"] if self.params["use_semantics"] else [])]
+        for i, name in enumerate(names):
+            self.create_subscription(Image, f"{name}/image", lambda msg, i=i, n=name: self._image(i, n, msg), qos)
+        self.create_subscription(CameraInfo, "rgb/camera_info", self._camera_info, qos)
+        topics = {n: self.resolve_topic_name(f"{n}/image") for n in names}
+        topics["camera_info"] = self.resolve_topic_name("rgb/camera_info")
+        self.watch = InputWatch(topics, self.get_logger().warn, SILENT_HINTS)
         self.pose_pub = self.create_publisher(PoseStamped, "~/pose", output_qos(10))
         self.path_pub = self.create_publisher(Path, "~/path", output_qos(1))
+        self.tf = TfPublisher(
+            self,
+            TfFrames(
+                self.map_frame,
+                self.params["base_frame"],
+                self.params["odom_frame"],
+                self.mount,
+                self.params["publish_camera_mount"],
+            ),
+            self.get_logger().warn,
+        )
         self.path: list[PoseStamped] = []
         self._path_lock = threading.Lock()
         self.create_service(Trigger, "~/reset", self._reset)
         self.diagnostics = Diagnostics(self, self._status)
-        topics = ", ".join(self.resolve_topic_name(t) for t in self.topics)
         mode = "lockstep" if self.params["lockstep"] else "live"
         self.get_logger().info(
-            f"tracking {topics} with preset {self.params['preset']} on {pipeline.slam.device} ({mode})"
+            f"tracking {', '.join(topics.values())} with preset {self.params['preset']} on {pipeline.slam.device} "
+            f"({mode}); map frame '{self.map_frame}' ({self.alignment.value})"
         )
 
     # ------------------------------------------------------------------ inputs
-    def _image(self, index: int, msg: Image) -> None:
+    def _image(self, index: int, name: str, msg: Image) -> None:
         if index == 0:
             self.inputs.tick()
+        self.watch.tick(name)
         self.assembler.image(index, msg)
 
+    def _camera_info(self, msg: CameraInfo) -> None:
+        self.watch.tick("camera_info")
+        self.assembler.camera_info(msg)
+
     def _on_frame(self, frame: Frame) -> None:
+        self._align(frame)
         self.pipeline.submit_frame(frame, time.monotonic())
+
+    def _align(self, frame: Frame) -> None:
+        """Before the first frame of a run: choose its pose, and so the map frame (``map_alignment``)."""
+        slam = self.pipeline.slam
+        if self._aligned or slam.frames_processed > 0 or slam.num_gaussians > 0:
+            self._aligned = True  # a loaded map keeps its own frame
+            return
+        settings = FloorSettings(max_tilt_deg=self.params["floor_max_tilt_deg"])
+        pose, plane = initial_map_pose(self.alignment, frame.depth, frame.intrinsics, self.mount, settings)
+        slam.initial_c2w = pose
+        self._aligned = True
+        log = self.get_logger()
+        if self.alignment is MapAlignment.FLOOR and plane is None:
+            log.warn("no floor plane in the first frame: the z-up map assumes camera_mount (a level camera)")
+        elif plane is not None:
+            up = self.mount[:3, :3].T @ [0.0, 0.0, 1.0]
+            log.info(
+                f"map frame levelled on the floor: camera {plane.height_m:.2f} m above it, tilted "
+                f"{plane.tilt_deg(up):.1f} deg from camera_mount ({100 * plane.inlier_fraction:.0f} % of the pixels)"
+            )
 
     def _on_gaussians(self, msg: PointCloud2) -> None:
         try:
@@ -123,11 +185,17 @@ class TrackingNode(Node):
         return ready
 
     # ------------------------------------------------------------------ outputs
+    def camera_frame(self) -> str:
+        """Frame id of the camera: the parameter, else the colour images' header, else the realsense default."""
+        return self.params["camera_frame"] or self.assembler.frame_id or CAMERA_FRAME
+
     def _on_pose(self, frame: Frame, outcome: TrackOutcome) -> None:
         if not self.context.ok():  # shutting down: the publishers are gone
             return
         msg = pose_msg(outcome.c2w, outcome.stamp_ns, self.map_frame)
         self.pose_pub.publish(msg)
+        if self.params["publish_tf"]:
+            self.tf.publish(outcome.c2w, outcome.stamp_ns, self.camera_frame())
         self._last_pose_sent = time.monotonic()
         self.outputs.tick()
         with self._path_lock:
@@ -140,35 +208,53 @@ class TrackingNode(Node):
 
     def _reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success = self.pipeline.reset()
+        self.after_reset()
+        for listener in self.reset_listeners:
+            listener()
+        response.message = "map and trajectory cleared" if response.success else "timed out waiting for the workers"
+        self.get_logger().info(f"~/reset: {response.message}")
+        return response
+
+    def after_reset(self) -> None:
+        """Forget this node's per-run state (the pipeline was reset)."""
         self.assembler.reset()
+        self.watch.reset()
+        self._aligned = False
         with self._path_lock:
             self.path.clear()
-        response.message = "map and trajectory cleared" if response.success else "timed out waiting for the workers"
-        return response
 
     def _status(self) -> tuple[int, str, dict[str, str]]:
         st, a = self.pipeline.stats, self.assembler
-        idle = self.inputs.idle_s()
-        level, message = OK, "tracking"
-        if idle is None or idle > self.params["stale_input_s"]:
+        stale = self.params["stale_input_s"]
+        level, message = OK, "tracking" if st.tracked else "waiting for the first synchronised frame"
+        silent = self.watch.silent(stale)
+        if self.watch.all_silent(stale):
             level = WARN
-            waited = "never" if idle is None else f"for {idle:.0f} s"
-            message = f"no input {waited}: waiting for {', '.join(self.resolve_topic_name(t) for t in self.topics)}"
+            waited = "yet" if self.inputs.last is None else f"for {self.inputs.idle_s():.0f} s"
+            message = f"no input {waited}: waiting for {', '.join(self.watch.topics.values())}"
+        elif silent:
+            level = WARN
+            message = f"no frames: {', '.join(self.watch.topics[n] for n in silent)} silent while the others arrive"
         elif self.pipeline.paused:
             message = "paused"
         elif st.errors:
             level, message = WARN, f"errors: {st.last_error}"
         latency = sorted(st.latency_s)
+        tf_state = "on" if self.params["publish_tf"] and self.tf.available else "off"
         values = {
             "input_rate_hz": f"{self.inputs.rate():.2f}",
             "processing_rate_hz": f"{self.outputs.rate():.2f}",
             "latency_ms": f"{1e3 * latency[len(latency) // 2]:.1f}" if latency else "n/a",
-            "frames_in": str(st.frames_in),
+            "frames_in": str(a.colour_in),
             "frames_tracked": str(st.tracked),
-            "queue_drops": str(st.dropped_frames + a.sync.dropped),
+            "frames_dropped": str(st.dropped_frames + a.colour_dropped),
+            "frames_rejected": str(a.frames_rejected),
+            "frames_waiting": str(a.frames_waiting),
             "tracking_failures": str(st.tracking_failures),
             "gaussians": str(self.pipeline.slam.num_gaussians),
-            "dropped_bad_input": str(sum(a.rejected.values())),
+            "silent_inputs": ", ".join(self.watch.topics[n] for n in silent) or "none",
+            "tf": tf_state if self.tf.available else "off (tf2_msgs missing)",
+            "map_alignment": self.alignment.value,
             **{f"dropped[{cause}]": str(n) for cause, n in a.rejected.items()},
         }
         return level, message, values

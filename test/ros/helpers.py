@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 import random
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 
+import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped
 from rclpy.context import Context
@@ -17,10 +20,12 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from msg_adapters import stamp_to_ns
+from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.frame import Frame
 from sgs_slam_ros.messages import camera_info_msg, image_msg
 
 FAST = ["tracking.iterations=15", "mapping.iterations=8"]
+CAMERA = "camera_color_optical_frame"
 
 
 def node_params(**extra: object) -> list[Parameter]:
@@ -34,6 +39,25 @@ def new_context(domain_id: int | None = None) -> Context:
     domain = random.randint(1, 100) if domain_id is None else domain_id
     rclpy.init(context=ctx, domain_id=domain, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     return ctx
+
+
+def tiny_frames(scene: Path) -> list[Frame]:
+    """The tiny scene's frames with depth rounded to millimetres, as a 16UC1 camera delivers them."""
+    ds = open_dataset(scene)
+    return [
+        dataclasses.replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32))
+        for i in range(len(ds))
+    ]
+
+
+def diagnostics_of(arrays: list, node: str) -> list[tuple[int, str, dict[str, str]]]:
+    """(level, message, values) of every status of ``node`` in received DiagnosticArrays, oldest first."""
+    return [
+        (s.level[0] if isinstance(s.level, bytes) else int(s.level), s.message, {kv.key: kv.value for kv in s.values})
+        for a in list(arrays)
+        for s in a.status
+        if s.name.endswith(node)
+    ]
 
 
 def wait_for(predicate: Callable[[], bool], timeout: float) -> bool:
@@ -87,8 +111,10 @@ class Feeder(Node):
     def connected(self, subscribers: int = 1) -> bool:
         return all(p.get_subscription_count() >= subscribers for p in self.pubs.values())
 
-    def publish(self, frame: Frame, depth_encoding: str = "16UC1", semantic: bool = True) -> None:
-        stamp, cam = frame.stamp_ns, "camera_color_optical_frame"
+    def publish(
+        self, frame: Frame, depth_encoding: str = "16UC1", semantic: bool = True, frame_id: str = CAMERA
+    ) -> None:
+        stamp, cam = frame.stamp_ns, frame_id
         self.info_pub.publish(camera_info_msg(frame.intrinsics, stamp, cam))
         self.pubs["/rgb/image"].publish(image_msg(frame.rgb, "rgb8", stamp, cam))
         depth = (frame.depth * 1000).round().astype("uint16") if depth_encoding == "16UC1" else frame.depth

@@ -10,23 +10,17 @@ from sensor_msgs.msg import Image, PointCloud2
 from std_srvs.srv import SetBool, Trigger
 
 from msg_adapters import image_to_numpy, pointcloud_to_numpy, pose_to_c2w
-from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.metrics import ate
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Feeder, Spinner, new_context, node_params, wait_for
+from .helpers import Feeder, Spinner, new_context, node_params, tiny_frames, wait_for
 
 pytestmark = pytest.mark.ros
 
 
 @pytest.fixture(scope="module")
 def tiny(tiny_scene):
-    ds = open_dataset(tiny_scene)
-    # rounded to millimetres, as a 16UC1 camera would deliver them
-    return [
-        dataclasses.replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32))
-        for i in range(len(ds))
-    ]
+    return tiny_frames(tiny_scene)
 
 
 @pytest.fixture
@@ -129,7 +123,7 @@ def test_bad_input_is_counted_and_the_node_keeps_running(system, tiny):
     def diag_drops():
         values = [{kv.key: kv.value for kv in s.values} for a in received["diag"] for s in a.status
                   if s.name.endswith("tracking_node")]  # fmt: skip
-        return values and int(values[-1]["dropped_bad_input"]) >= 2
+        return values and int(values[-1]["frames_rejected"]) >= 2
 
     assert wait_for(diag_drops, 5.0)
     play(feeder, tiny[4:5])  # still running

@@ -1,0 +1,67 @@
+"""Which inputs are silent: the usual "no data" cause is one topic missing while the others arrive.
+
+A node that synchronises RGB, depth, labels and camera_info makes no frame while any one of them is
+missing (a segmentation node that is not running, a remap typo), and nothing else would say so.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+__all__ = ["InputWatch"]
+
+
+class InputWatch:
+    """Arrival times per input; reports inputs silent for ``stale_s`` while another one arrives.
+
+    ``log`` is called once when an input becomes silent (and again only after it came back and went
+    silent again). Times are wall-clock (monotonic): a silent topic is silent in any ROS time.
+    """
+
+    def __init__(self, topics: dict[str, str], log: Callable[[str], None], hint: dict[str, str] | None = None) -> None:
+        self.topics = topics  # input name -> resolved topic name
+        self.log, self.hint = log, hint or {}
+        self.last: dict[str, float | None] = dict.fromkeys(topics)
+        self.started = time.monotonic()
+        self._reported: set[str] = set()
+        self._lock = threading.Lock()
+
+    def tick(self, name: str) -> None:
+        """A message of input ``name`` arrived now."""
+        with self._lock:
+            self.last[name] = time.monotonic()
+            self._reported.discard(name)
+
+    def idle_s(self, name: str, now: float | None = None) -> float:
+        """Seconds since input ``name`` last arrived (since start if never)."""
+        now = time.monotonic() if now is None else now
+        last = self.last[name]
+        return now - (self.started if last is None else last)
+
+    def silent(self, stale_s: float) -> list[str]:
+        """Inputs without a message for ``stale_s`` while some other input had one within ``stale_s``."""
+        now = time.monotonic()
+        with self._lock:
+            fresh = [n for n in self.topics if self.last[n] is not None and now - self.last[n] <= stale_s]
+            quiet = [n for n in self.topics if self.idle_s(n, now) > stale_s] if fresh else []
+            new = [n for n in quiet if n not in self._reported]
+            self._reported.update(new)
+        for name in new:
+            never = self.last[name] is None
+            waited = "never received" if never else f"nothing for {self.idle_s(name):.0f} s"
+            others = ", ".join(self.topics[n] for n in fresh)
+            hint = f"; {self.hint[name]}" if name in self.hint else ""
+            self.log(f"{self.topics[name]} is silent ({waited}) while {others} arrive{'s' * (len(fresh) == 1)}{hint}")
+        return quiet
+
+    def all_silent(self, stale_s: float) -> bool:
+        """No input had a message within ``stale_s``."""
+        now = time.monotonic()
+        return all(self.idle_s(n, now) > stale_s for n in self.topics)
+
+    def reset(self) -> None:
+        """Forget the reports (they are logged again if the inputs stay silent)."""
+        with self._lock:
+            self._reported.clear()

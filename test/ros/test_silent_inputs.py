@@ -1,0 +1,59 @@
+"""An input that stays silent while the others arrive is a warning in /diagnostics and one log line."""
+
+import dataclasses
+import time
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import Log
+from rclpy.parameter import Parameter
+
+from sgs_slam_ros.slam_node import build_slam_nodes
+
+from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, tiny_frames, wait_for
+
+pytestmark = pytest.mark.ros
+OK, WARN = 0, 1
+
+
+def test_missing_label_topic_is_reported_once_and_clears(tiny_scene):
+    frames = tiny_frames(tiny_scene)
+    ctx = new_context()
+    nodes = build_slam_nodes(context=ctx, parameter_overrides=node_params(stale_input_s=0.5))  # use_semantics: true
+    feeder = Feeder(ctx)
+    diag, logs = [], []
+    feeder.create_subscription(DiagnosticArray, "/diagnostics", diag.append, 50)
+    feeder.create_subscription(Log, "/rosout", logs.append, 100)
+    spinner = Spinner(ctx, [*nodes, feeder])
+    try:
+        assert wait_for(feeder.connected, 10.0)
+        # a camera driver without the segmentation node: colour, depth and camera_info only, for 3 s
+        end, i = time.monotonic() + 3.0, 0
+        while time.monotonic() < end:
+            feeder.publish(dataclasses.replace(frames[0], stamp_ns=(i + 1) * 10**8), semantic=False)
+            i += 1
+            time.sleep(0.1)
+        assert wait_for(lambda: diagnostics_of(diag, "tracking_node"), 3.0)
+        level, message, values = diagnostics_of(diag, "tracking_node")[-1]
+        assert level == WARN and "/semantic/image" in message, message
+        assert values["silent_inputs"] == "/semantic/image"
+        assert int(values["frames_in"]) >= 20 and values["frames_tracked"] == "0"
+        assert int(values["frames_waiting"]) + int(values["frames_dropped"]) == int(values["frames_in"])
+        warnings = [m.msg for m in logs if m.name == "tracking_node" and "is silent" in m.msg]
+        assert len(warnings) == 1, warnings  # once, not once a second
+        assert "/semantic/image" in warnings[0] and "use_semantics:=false" in warnings[0]
+        # the segmentation node starts: frames flow and the warning clears (stale_input_s is live: longer
+        # than a frame's tracking time now, so the inputs are not silent between lockstep frames)
+        nodes[0].set_parameters([Parameter("stale_input_s", value=5.0)])
+        for frame in frames[:2]:
+            f = dataclasses.replace(frame, stamp_ns=frame.stamp_ns + i * 10**8)
+            feeder.publish(f)
+            assert wait_for(lambda f=f: f.stamp_ns in feeder.poses, 60.0)
+        assert wait_for(lambda: diagnostics_of(diag, "tracking_node")[-1][0] == OK, 5.0)
+        assert diagnostics_of(diag, "tracking_node")[-1][2]["silent_inputs"] == "none"
+    finally:
+        spinner.stop()
+        for n in [*nodes, feeder]:
+            getattr(n, "close", lambda: None)()
+            n.destroy_node()
+        ctx.try_shutdown()
