@@ -129,6 +129,13 @@ def render(
         raise ShapeError(f"w2c must be [4, 4], got {list(w2c.shape)}")
     w2c = w2c.to(device=gaussians.device, dtype=gaussians.means.dtype)
     backend = resolve_backend(settings.backend, gaussians.device)
+    if backend == "cpu" and gaussians.isotropic:  # the map's parameters straight into the kernels
+        g = gaussians
+        semantics = g.semantics if with_semantics else g.semantics[:, :0]
+        color, semantic, depth, sil = cpu_backend.render_world_isotropic_cpu(
+            g.means, g.log_scales, g.logit_opacities, g.colors, semantics, w2c, intrinsics, settings
+        )
+        return RenderOutput(color, depth.view(intrinsics.height, intrinsics.width), sil, semantic, backend)
     cam = to_camera(gaussians, w2c, with_semantics)
     if backend == "gsplat":
         feats, depth, sil = gsplat_backend.rasterize(cam, intrinsics, settings)

@@ -18,7 +18,15 @@ from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.native import NativeExtension
 from sgs_slam_core.render.settings import RenderSettings
 
-__all__ = ["EXTENSION", "composite_cpu", "extension", "is_available", "render_isotropic_cpu", "unavailable_reason"]
+__all__ = [
+    "EXTENSION",
+    "composite_cpu",
+    "extension",
+    "is_available",
+    "render_isotropic_cpu",
+    "render_world_isotropic_cpu",
+    "unavailable_reason",
+]
 
 EXTENSION = NativeExtension("render", Path(__file__).with_name("cpu") / "raster.cpp", "the CPU renderer")
 
@@ -165,3 +173,65 @@ def render_isotropic_cpu(
     ``groups`` splits the ``D`` feature channels (e.g. 3 colour, S semantic).
     """
     return tuple(_CppIsotropicRender.apply(means_cam, scales, opacities, features, intrinsics, settings, groups))
+
+
+class _CppWorldIsotropicRender(torch.autograd.Function):
+    """The map's isotropic parameters and the pose in, images out: camera transform, activations,
+    projection, binning and compositing (and their gradients) in C++, no per-Gaussian op in PyTorch.
+    """
+
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any,
+        means: Tensor,  # [N, 3] world frame
+        log_scales: Tensor,  # [N, 1]
+        logit_opacities: Tensor,  # [N]
+        colors: Tensor,  # [N, 3]
+        semantics: Tensor,  # [N, S] (S = 0 renders no semantics)
+        w2c: Tensor,  # [4, 4]
+        k: Intrinsics,
+        s: RenderSettings,
+    ) -> tuple[Tensor, ...]:
+        ext, threads = extension(), torch.get_num_threads()
+        m, ls, lo, col, sem, pose = (t.detach() for t in (means, log_scales, logit_opacities, colors, semantics, w2c))
+        cam = (k.fx, k.fy, k.cx, k.cy, k.width, k.height)
+        mc, sc, op, feats, m2d, con, rad = ext.prepare_world_isotropic(
+            m, ls, lo, col, sem, pose, *cam, s.near_plane, s.eps2d, s.alpha_min, s.extent_sigma, threads
+        )
+        tile = s.cpu_tile(ext.max_tile(m.dtype == torch.float64))
+        gids, offsets = ext.bin_gaussians(m2d, rad, feats[:, -1], k.width, k.height, tile)
+        args = (k.width, k.height, tile, s.alpha_min, s.alpha_max, s.extent_sigma**2, s.min_transmittance,
+                threads)  # fmt: skip
+        ctx.groups = [3, sem.shape[1], 1]
+        *images, sil, t_final, count = ext.composite_forward(m2d, con, op, rad, feats, gids, offsets, ctx.groups, *args)
+        ctx.save_for_backward(m, pose, mc, sc, op, m2d, con, rad, feats, gids, offsets, t_final, count)
+        ctx.args, ctx.cam, ctx.s = args, cam, s
+        return (*images, sil)
+
+    @staticmethod
+    def backward(ctx: Any, *grad_out: Tensor | None) -> tuple[Tensor | None, ...]:  # type: ignore[override]
+        m, pose, mc, sc, op, m2d, con, rad, feats, gids, offsets, t_final, count = ctx.saved_tensors
+        ext, s = extension(), ctx.s
+        rows = ext.composite_backward(m2d, con, op, rad, feats, gids, offsets, t_final, count, ctx.groups,
+                                      *_grads(grad_out), *ctx.args)  # fmt: skip
+        need_pose = ctx.needs_input_grad[5]
+        g_m, g_ls, g_lo, g_col, g_sem, g_pose = ext.world_isotropic_backward(
+            m, pose, mc, sc, op, rows, ctx.groups[1], need_pose, *ctx.cam, s.near_plane, s.eps2d,
+            torch.get_num_threads(),
+        )  # fmt: skip
+        return g_m, g_ls[:, None], g_lo, g_col, g_sem, g_pose if need_pose else None, None, None
+
+
+def render_world_isotropic_cpu(
+    means: Tensor,  # [N, 3] world frame
+    log_scales: Tensor,  # [N, 1]
+    logit_opacities: Tensor,  # [N]
+    colors: Tensor,  # [N, 3]
+    semantics: Tensor,  # [N, S]; S = 0 skips the semantic channels
+    w2c: Tensor,  # [4, 4]
+    intrinsics: Intrinsics,
+    settings: RenderSettings,
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:  # colour [H, W, 3], semantic [H, W, S], depth [H, W, 1], sil [H, W]
+    """An isotropic map rendered from its own parameters, everything in the compiled kernels."""
+    return tuple(_CppWorldIsotropicRender.apply(means, log_scales, logit_opacities, colors, semantics, w2c,
+                                                intrinsics, settings))  # fmt: skip

@@ -1027,11 +1027,152 @@ std::vector<torch::Tensor> project_isotropic_backward(torch::Tensor means_cam, t
   return {g_mc, g_sc};
 }
 
+// Per Gaussian: camera transform, activations, feature row (colour, semantics, depth) and projection.
+template <typename T>
+void prepare_world_all(const Camera& k, int64_t n, int64_t ns, const T* m, const T* ls, const T* lo, const T* col,
+                       const T* sem, const T* P, T* pmc, T* psc, T* pop, T* pf, T* pm2d, T* pcon, T* prad,
+                       int threads) {
+  const int64_t d = 3 + ns + 1;
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (int64_t g = 0; g < n; ++g) {
+    const T x = m[3 * g], y = m[3 * g + 1], z = m[3 * g + 2];
+    T* c = pmc + 3 * g;
+    for (int i = 0; i < 3; ++i) c[i] = P[4 * i] * x + P[4 * i + 1] * y + P[4 * i + 2] * z + P[4 * i + 3];
+    psc[g] = std::exp(ls[g]);
+    pop[g] = T(1) / (T(1) + std::exp(-lo[g]));
+    T* f = pf + d * g;
+    f[0] = col[3 * g];
+    f[1] = col[3 * g + 1];
+    f[2] = col[3 * g + 2];
+    for (int64_t j = 0; j < ns; ++j) f[3 + j] = sem[ns * g + j];
+    project_one(k, c, psc[g], pop[g], pm2d + 2 * g, pcon + 3 * g, prad + g, f + d - 1);
+  }
+}
+
+// Per Gaussian: projection backward and the chain through the transform and the activations.
+template <typename T>
+void world_backward_all(const Camera& k, int64_t n, int64_t ns, int64_t stride, const T* P, const T* mc, const T* sc,
+                        const T* op, const T* r, T* pgm, T* pls, T* plo, T* pcol, T* psem, T* pmc, int threads) {
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (int64_t g = 0; g < n; ++g) {
+    const T* row = r + stride * g;
+    T gc[3], gs;
+    project_one_backward(k, mc + 3 * g, sc[g], row, row + 2, row[stride - 1], gc, &gs);
+    for (int j = 0; j < 3; ++j) pgm[3 * g + j] = P[j] * gc[0] + P[4 + j] * gc[1] + P[8 + j] * gc[2];  // R^T g
+    pls[g] = gs * sc[g];
+    plo[g] = row[5] * op[g] * (T(1) - op[g]);
+    for (int j = 0; j < 3; ++j) pcol[3 * g + j] = row[kGeomGrads + j];
+    for (int64_t j = 0; j < ns; ++j) psem[ns * g + j] = row[kGeomGrads + 3 + j];
+    if (pmc) {
+      pmc[3 * g] = gc[0];
+      pmc[3 * g + 1] = gc[1];
+      pmc[3 * g + 2] = gc[2];
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The map's own parameters in, straight to the projection: w2c applied to the world means,
+// exp of the log-scales, sigmoid of the logit opacities, and the feature rows (colour, semantics,
+// camera depth) gathered in one pass, so no per-Gaussian tensor op runs in PyTorch per render.
+// Same maths as render/api.py's to_camera followed by project_isotropic.
+// Returns (means_cam [N, 3], scales [N], opacities [N], features [N, 3 + S + 1], means2d [N, 2],
+// conics [N, 3], radii [N]); the features' last column is the depth.
+std::vector<torch::Tensor> prepare_world_isotropic(torch::Tensor means, torch::Tensor log_scales,
+                                                   torch::Tensor logit_opacities, torch::Tensor colors,
+                                                   torch::Tensor semantics, torch::Tensor w2c, double fx, double fy,
+                                                   double cx, double cy, int64_t width, int64_t height, double near,
+                                                   double eps2d, double alpha_min, double extent_sigma,
+                                                   int64_t threads) {
+  means = means.contiguous();
+  log_scales = log_scales.contiguous();
+  logit_opacities = logit_opacities.contiguous();
+  colors = colors.contiguous();
+  semantics = semantics.contiguous();
+  w2c = w2c.contiguous();
+  const int64_t n = means.size(0), ns = semantics.size(1), d = 3 + ns + 1;
+  TORCH_CHECK(log_scales.numel() == n && logit_opacities.numel() == n && colors.size(0) == n && colors.size(1) == 3 &&
+                  semantics.size(0) == n && w2c.numel() == 16,
+              "prepare_world_isotropic: inconsistent shapes");
+  const Camera k{fx, fy, cx, cy, width, height, near, eps2d, alpha_min, extent_sigma};
+  auto opts = means.options();
+  auto mc = torch::empty({n, 3}, opts), sc = torch::empty({n}, opts), op = torch::empty({n}, opts);
+  auto feats = torch::empty({n, d}, opts);
+  auto m2d = torch::empty({n, 2}, opts), con = torch::empty({n, 3}, opts), rad = torch::empty({n}, opts);
+  AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "prepare_world_isotropic", [&] {
+    using T = scalar_t;
+    const T* m = means.data_ptr<T>();
+    const T* ls = log_scales.data_ptr<T>();
+    const T* lo = logit_opacities.data_ptr<T>();
+    const T* col = colors.data_ptr<T>();
+    const T* sem = semantics.data_ptr<T>();
+    const T* P = w2c.data_ptr<T>();
+    T *pmc = mc.data_ptr<T>(), *psc = sc.data_ptr<T>(), *pop = op.data_ptr<T>(), *pf = feats.data_ptr<T>();
+    T *pm2d = m2d.data_ptr<T>(), *pcon = con.data_ptr<T>(), *prad = rad.data_ptr<T>();
+    prepare_world_all<T>(k, n, ns, m, ls, lo, col, sem, P, pmc, psc, pop, pf, pm2d, pcon, prad,
+                         static_cast<int>(threads));
+  });
+  return {mc, sc, op, feats, m2d, con, rad};
+}
+
+// Gradients of the map's parameters from the compositor's per-Gaussian rows [N, 6 + D] (u, v, A,
+// B, C, opacity, colour, semantics, depth): (d means [N, 3], d log_scales [N], d logit_opacities [N],
+// d colors [N, 3], d semantics [N, S], d w2c [4, 4] (zeros unless need_pose)). The pose gradient is
+// summed over the Gaussians in index order (deterministic for any thread count).
+std::vector<torch::Tensor> world_isotropic_backward(torch::Tensor means, torch::Tensor w2c, torch::Tensor means_cam,
+                                                    torch::Tensor scales, torch::Tensor opacities, torch::Tensor rows,
+                                                    int64_t num_semantic, bool need_pose, double fx, double fy,
+                                                    double cx, double cy, int64_t width, int64_t height, double near,
+                                                    double eps2d, int64_t threads) {
+  means = means.contiguous();
+  w2c = w2c.contiguous();
+  rows = rows.contiguous();
+  const int64_t n = means.size(0), ns = num_semantic, stride = rows.size(1), d = stride - kGeomGrads;
+  TORCH_CHECK(d == 3 + ns + 1 && rows.size(0) == n, "world_isotropic_backward: rows must be [N, 6 + 3 + S + 1]");
+  const Camera k{fx, fy, cx, cy, width, height, near, eps2d, 0.0, 0.0};
+  auto opts = means.options();
+  auto g_m = torch::empty({n, 3}, opts), g_ls = torch::empty({n}, opts), g_lo = torch::empty({n}, opts);
+  auto g_col = torch::empty({n, 3}, opts), g_sem = torch::empty({n, ns}, opts);
+  auto g_w2c = torch::zeros({4, 4}, opts);
+  auto g_mc = torch::empty({need_pose ? n : 0, 3}, opts);
+  AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "world_isotropic_backward", [&] {
+    using T = scalar_t;
+    const T* P = w2c.data_ptr<T>();
+    const T* mc = means_cam.data_ptr<T>();
+    const T* sc = scales.data_ptr<T>();
+    const T* op = opacities.data_ptr<T>();
+    const T* r = rows.data_ptr<T>();
+    T *pgm = g_m.data_ptr<T>(), *pls = g_ls.data_ptr<T>(), *plo = g_lo.data_ptr<T>();
+    T *pcol = g_col.data_ptr<T>(), *psem = g_sem.data_ptr<T>();
+    T* pmc = need_pose ? g_mc.data_ptr<T>() : nullptr;
+    world_backward_all<T>(k, n, ns, stride, P, mc, sc, op, r, pgm, pls, plo, pcol, psem, pmc, static_cast<int>(threads));
+    if (need_pose) {  // d R_ij = sum_g d mc_i m_j, d t_i = sum_g d mc_i
+      const T* m = means.data_ptr<T>();
+      double acc[12] = {0};
+      for (int64_t g = 0; g < n; ++g)
+        for (int i = 0; i < 3; ++i) {
+          const double gi = pmc[3 * g + i];
+          acc[4 * i] += gi * m[3 * g];
+          acc[4 * i + 1] += gi * m[3 * g + 1];
+          acc[4 * i + 2] += gi * m[3 * g + 2];
+          acc[4 * i + 3] += gi;
+        }
+      T* pw = g_w2c.data_ptr<T>();
+      for (int i = 0; i < 12; ++i) pw[i] = static_cast<T>(acc[i]);
+    }
+  });
+  return {g_m, g_ls, g_lo, g_col, g_sem, g_w2c};
+}
+
 // The GIL is released while the kernels run, so tracking, mapping and rendering threads overlap.
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   using release = py::call_guard<py::gil_scoped_release>;
   m.def("project_isotropic", &project_isotropic, release(), "EWA projection of isotropic Gaussians");
   m.def("project_isotropic_backward", &project_isotropic_backward, release(), "gradients of project_isotropic");
+  m.def("prepare_world_isotropic", &prepare_world_isotropic, release(),
+        "camera transform, activations, feature rows and projection of the map's isotropic Gaussians");
+  m.def("world_isotropic_backward", &world_isotropic_backward, release(),
+        "gradients of the map's parameters (and the pose) from the compositor's rows");
   m.def("max_tile", &max_tile, "largest tile side the compositor takes in float (false) or double (true)");
   m.def("bin_gaussians", &bin_gaussians, release(), "tile lists sorted by depth");
   m.def("composite_forward", &composite_forward, release(), "front-to-back compositing");
