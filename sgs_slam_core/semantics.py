@@ -93,7 +93,9 @@ class SemanticCodec:
         if self.mode == "onehot":
             if candidates is None:
                 return flat.argmax(dim=1).reshape(semantic.shape[:-1])
-            ids = torch.tensor(sorted(set(candidates)), dtype=torch.long, device=semantic.device)
+            k = self.num_channels  # ids without a channel (>= num_classes) can never be decoded
+            kept = sorted({i for i in candidates if 0 <= i < k}) or [0]
+            ids = torch.tensor(kept, dtype=torch.long, device=semantic.device)
             return ids[flat[:, ids].argmax(dim=1)].reshape(semantic.shape[:-1])
         ids_list = sorted(set(self.table.ids if candidates is None else candidates))
         ids = torch.tensor(ids_list, dtype=torch.long, device=semantic.device)
