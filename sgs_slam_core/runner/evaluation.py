@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from sgs_slam_core.datasets.base import Dataset
+from sgs_slam_core.fileio import make_dir, write_image
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.metrics import (
@@ -85,7 +86,7 @@ def _save_example(path: Path, frame_rgb: np.ndarray, gt_sem: np.ndarray | None, 
     if grid.shape[1] < 640:  # small runs: enlarge (nearest) so the picture is readable
         factor = int(np.ceil(640 / grid.shape[1]))
         grid = cv2.resize(grid, (grid.shape[1] * factor, grid.shape[0] * factor), interpolation=cv2.INTER_NEAREST)
-    cv2.imwrite(str(path), grid[..., ::-1])
+    write_image(path, grid[..., ::-1])
 
 
 class _FrameMetrics:
@@ -130,7 +131,7 @@ class _FrameMetrics:
             vals = [x for x in self.values[key] if np.isfinite(x)]
             return float(np.mean(vals)) if vals else None
 
-        labelled = bool(self.cm.matrix.sum())
+        labelled = self.cm.total > 0
         return {
             "psnr_db": mean("psnr"), "psnr_masked_db": mean("psnr_masked"), "ssim": mean("ssim"),
             "ms_ssim": mean("ms_ssim"), "depth_l1_m": mean("depth_l1"), "lpips": mean("lpips"),
@@ -174,7 +175,7 @@ def evaluate(
     chosen = eval_indices(len(frame_indices), options.eval_every)
     examples = set(chosen[:: max(1, len(chosen) // max(options.render_examples, 1))][: options.render_examples])
     if options.out_dir is not None and examples:
-        (options.out_dir / "renders").mkdir(parents=True, exist_ok=True)
+        make_dir(options.out_dir / "renders")
     for n, t in enumerate(chosen):
         frame = dataset[frame_indices[t]]
         w2c = torch.as_tensor(np.linalg.inv(poses[t]), dtype=torch.float32, device=gaussians.device)

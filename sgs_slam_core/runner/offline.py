@@ -8,35 +8,39 @@ The run folder receives ``trajectory.txt`` (TUM format, camera-to-world), ``metr
 
 from __future__ import annotations
 
-import csv
+import contextlib
 import logging
 import resource
-import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-import yaml
 from torch.profiler import record_function
 
 from sgs_slam_core.cli.progress import ProgressBar
 from sgs_slam_core.config import dump_yaml
 from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.datasets.base import Dataset
-from sgs_slam_core.errors import DatasetError, FrameError
+from sgs_slam_core.errors import DatasetError, EvaluationError, FrameError, OutputError, SgsSlamError
 from sgs_slam_core.mapio import save_map, write_splat_ply
 from sgs_slam_core.metrics import ate, write_tum_trajectory
 from sgs_slam_core.render.api import resolve_backend
 from sgs_slam_core.runner.evaluation import EvalOptions, evaluate
+from sgs_slam_core.runner.outputs import RESULT_FILES, check_run_dir, prepare_run_dir, remove_run, write_csv
 from sgs_slam_core.runner.report import write_metrics
+from sgs_slam_core.runner.run_info import write_run_info
+from sgs_slam_core.runner.safety import RunInterrupted, StopRequest
 from sgs_slam_core.slam.system import Slam, StepResult
 
-__all__ = ["RunResult", "check_run_dir", "prepare_run_dir", "run_offline"]
+__all__ = ["RunResult", "check_run_dir", "prepare_run_dir", "run_offline"]  # the folder helpers live in outputs
 
 log = logging.getLogger(__name__)
+
+_STOP_MESSAGE = "interrupted: finishing this frame, then writing the run folder (Ctrl-C again to abort)"
 
 _CSV_FIELDS = ("frame", "dataset_index", "stamp_ns", "track_ms", "map_ms", "track_iterations", "track_converged",
                "track_residual_cm", "map_iterations", "added", "pruned", "gaussians", "keyframe", "window",
@@ -52,20 +56,6 @@ class RunResult:
     slam: Slam
     frame_indices: list[int] = field(default_factory=list)
     steps: list[StepResult] = field(default_factory=list)
-
-
-def check_run_dir(out: Path, overwrite: bool) -> None:
-    """Raise unless ``out`` is absent, empty, or may be replaced (call before any long work)."""
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
-        raise DatasetError(f"output folder {out} exists and is not empty (use --overwrite to replace it)")
-
-
-def prepare_run_dir(out: Path, overwrite: bool) -> None:
-    """Create ``out``; an existing non-empty folder is refused unless ``overwrite`` (then replaced)."""
-    check_run_dir(out, overwrite)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        shutil.rmtree(out) if out.is_dir() else out.unlink()
-    out.mkdir(parents=True, exist_ok=True)
 
 
 def _peak_memory_mb(device: torch.device) -> float:
@@ -107,20 +97,24 @@ class _Loop:
     map_s: float = 0.0
     load_s: float = 0.0
     bad_frames: int = 0
+    interrupted: bool = False  # stopped by Ctrl-C before the last frame
 
 
-def _process_all(slam: Slam, dataset: Dataset, show_progress: bool) -> _Loop:
-    """Feed every frame to ``slam``; frames it rejects are counted and skipped."""
+def _process_all(slam: Slam, dataset: Dataset, show_progress: bool, should_stop: Callable[[], bool]) -> _Loop:
+    """Feed every frame to ``slam``; frames it rejects or that cannot be read are counted and skipped."""
     loop, gts = _Loop(), []
     bar = ProgressBar(len(dataset), "slam") if show_progress else None
     for i in range(len(dataset)):
+        if should_stop():
+            loop.interrupted = True
+            break
         t0 = time.perf_counter()
-        with record_function("data_loading"):
-            frame = dataset[i]
-        loop.load_s += time.perf_counter() - t0
         try:
+            with record_function("data_loading"):
+                frame = dataset[i]
+            loop.load_s += time.perf_counter() - t0
             step = slam.process(frame)
-        except FrameError as err:
+        except (FrameError, DatasetError) as err:
             loop.bad_frames += 1
             log.warning("frame %d skipped: %s", i, err)
             continue
@@ -136,23 +130,69 @@ def _process_all(slam: Slam, dataset: Dataset, show_progress: bool) -> _Loop:
             if len(loop.frame_indices) % 10 == 0 or i == len(dataset) - 1:
                 extra = f"{_ate_so_far(loop.poses, gts)}  {extra}"
             bar.update(i + 1, extra)
-    if not loop.frame_indices:
-        raise DatasetError("no frame could be processed")
+    if not loop.frame_indices and not loop.interrupted:
+        raise DatasetError(f"no frame could be processed ({loop.bad_frames} skipped; the log says why)")
     return loop
 
 
 def _write_outputs(out: Path, slam: Slam, loop: _Loop) -> None:
-    """trajectory.txt, frames.csv, map.sgsmap and map.ply."""
+    """trajectory.txt, frames.csv, map.sgsmap and map.ply, smallest first, each atomically."""
     stamps = [s.stamp_ns for s in loop.steps]
     write_tum_trajectory(out / "trajectory.txt", stamps, np.stack(loop.poses))
-    with (out / "frames.csv").open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=_CSV_FIELDS)
-        writer.writeheader()
-        writer.writerows(loop.rows)
+    write_csv(out / "frames.csv", _CSV_FIELDS, loop.rows)
     map_file = slam.to_map_file()
     map_file.trajectory = list(zip(loop.frame_indices, stamps, loop.poses, strict=True))  # dataset frame indices
     save_map(out / "map.sgsmap", map_file)
     write_splat_ply(out / "map.ply", slam.gaussians, slam.codec.table)
+
+
+def _stats(slam: Slam, loop: _Loop, config: SlamConfig) -> dict[str, Any]:
+    """The metrics that come from the run itself (speed, memory, counters), not from the evaluation."""
+    frames = len(loop.frame_indices)
+    return {
+        "frames": frames,
+        "fps": frames / max(loop.track_s + loop.map_s, 1e-9),
+        "track_ms_per_frame": 1e3 * loop.track_s / frames,
+        "map_ms_per_frame": 1e3 * loop.map_s / frames,
+        "load_ms_per_frame": 1e3 * loop.load_s / frames,
+        "num_gaussians": slam.num_gaussians,
+        "peak_memory_mb": _peak_memory_mb(slam.device),
+        "tracking_failures": slam.failures,
+        "bad_frames": loop.bad_frames,
+        "keyframes": len(slam.keyframes),
+        "device": str(slam.device),
+        "render_backend": resolve_backend(config.render.backend, slam.device),
+    }
+
+
+def _track_and_map(
+    dataset: Dataset, config: SlamConfig, out: Path, overwrite: bool, provenance: dict[str, Any], show_progress: bool
+) -> tuple[Slam, _Loop]:
+    """Create the run folder, process the frames, write the results (see :func:`run_offline` on failures)."""
+    created = prepare_run_dir(out, overwrite)
+    try:
+        dump_yaml(config, out / "config.yaml")
+        write_run_info(out / "run.yaml", provenance, "running")
+        torch.manual_seed(config.seed)
+        slam = Slam(config, dataset.label_table)
+        with StopRequest(_STOP_MESSAGE) as stop:
+            loop = _process_all(slam, dataset, show_progress, stop)
+        if not loop.frame_indices:
+            raise KeyboardInterrupt  # interrupted before the first frame: nothing worth keeping
+        _write_outputs(out, slam, loop)
+    except OutputError as err:  # e.g. a full disk: keep the results written before it, and say which
+        kept = [name for name in RESULT_FILES if (out / name).is_file()]
+        if not kept:
+            remove_run(out, created)
+            raise
+        note = f"{err}; written before it: {', '.join(kept)}"
+        with contextlib.suppress(OutputError):
+            write_run_info(out / "run.yaml", provenance, "failed", note)
+        raise OutputError(f"{note} (in {out})") from err
+    except BaseException:
+        remove_run(out, created)  # aborted before its results were complete: leave nothing behind
+        raise
+    return slam, loop
 
 
 def run_offline(
@@ -164,32 +204,44 @@ def run_offline(
     show_progress: bool = True,
     render_examples: int = 4,
 ) -> RunResult:
-    """Process every frame, save the outputs, evaluate, and return the metrics."""
-    out = Path(out)
-    prepare_run_dir(out, overwrite)
-    dump_yaml(config, out / "config.yaml")
-    (out / "run.yaml").write_text(yaml.safe_dump(provenance or {}, sort_keys=False))
-    torch.manual_seed(config.seed)
-    slam = Slam(config, dataset.label_table)
-    loop = _process_all(slam, dataset, show_progress)
-    _write_outputs(out, slam, loop)
-    frames = len(loop.frame_indices)
-    metrics: dict[str, Any] = evaluate(
-        dataset, loop.frame_indices, loop.poses, slam.gaussians, slam.codec, slam.label_candidates(), config.render,
-        EvalOptions(config.eval_every, render_examples, out),
-    )  # fmt: skip
-    metrics.update(
-        fps=frames / max(loop.track_s + loop.map_s, 1e-9),
-        track_ms_per_frame=1e3 * loop.track_s / frames,
-        map_ms_per_frame=1e3 * loop.map_s / frames,
-        load_ms_per_frame=1e3 * loop.load_s / frames,
-        num_gaussians=slam.num_gaussians,
-        peak_memory_mb=_peak_memory_mb(slam.device),
-        tracking_failures=slam.failures,
-        bad_frames=loop.bad_frames,
-        keyframes=len(slam.keyframes),
-        device=str(slam.device),
-        render_backend=resolve_backend(config.render.backend, slam.device),
-    )
+    """Process every frame, save the outputs, evaluate, and return the metrics.
+
+    The results (trajectory, frames.csv, maps) are written before the evaluation, so a failing
+    evaluation (raised as :class:`EvaluationError`) never loses them. The first Ctrl-C stops after
+    the current frame and writes the folder for the frames processed so far (raised as
+    :class:`RunInterrupted` once written, without evaluation); a second Ctrl-C, or one before any
+    frame was processed, leaves no run folder. A result that cannot be written (disk full) raises
+    :class:`OutputError` naming it and the results written before it. ``run.yaml`` says how the
+    run ended.
+    """
+    out, provenance = Path(out), dict(provenance or {})
+    slam, loop = _track_and_map(dataset, config, out, overwrite, provenance, show_progress)
+    stats = _stats(slam, loop, config)
+    done = {"frames_processed": len(loop.frame_indices), "frames_in_input": len(dataset)}
+    if loop.interrupted:
+        note = (f"interrupted by Ctrl-C after {len(loop.frame_indices)} of {len(dataset)} frames; the results "
+                f"hold those frames, not evaluated (run: sgs-slam eval {out})")  # fmt: skip
+        write_metrics(out / "metrics.json", {**stats, "interrupted": True})
+        write_run_info(out / "run.yaml", provenance, "interrupted", note, **done)
+        raise RunInterrupted(f"{note}; run folder: {out}")
+    try:
+        metrics: dict[str, Any] = evaluate(
+            dataset, loop.frame_indices, loop.poses, slam.gaussians, slam.codec, slam.label_candidates(),
+            config.render, EvalOptions(config.eval_every, render_examples, out),
+        )  # fmt: skip
+    except KeyboardInterrupt:
+        note = f"evaluation interrupted by Ctrl-C; the results are complete (run: sgs-slam eval {out})"
+        write_metrics(out / "metrics.json", {**stats, "evaluation": "interrupted"})
+        write_run_info(out / "run.yaml", provenance, "evaluation_failed", note, **done)
+        raise RunInterrupted(f"{note}; run folder: {out}") from None
+    except Exception as err:  # a bug or running out of memory in the evaluation must not cost the run
+        reason = str(err) if isinstance(err, SgsSlamError) else f"{type(err).__name__}: {err}"
+        note = f"the run is complete but its evaluation failed: {reason}"
+        write_metrics(out / "metrics.json", {**stats, "evaluation_error": reason})
+        write_run_info(out / "run.yaml", provenance, "evaluation_failed", note, **done)
+        kept = f"trajectory.txt and map.sgsmap are in {out} (retry: sgs-slam eval {out})"
+        raise EvaluationError(f"{note}; {kept}") from err
+    metrics.update(stats)
     write_metrics(out / "metrics.json", metrics)
+    write_run_info(out / "run.yaml", provenance, "complete", **done)
     return RunResult(out, metrics, slam, loop.frame_indices, loop.steps)
