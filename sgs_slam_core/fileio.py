@@ -39,6 +39,15 @@ MAX_TEXT_BYTES = 256 * 2**20  # a text input (list, trajectory, YAML) larger tha
 TEXT_ERRORS = "surrogateescape"
 
 
+def _read_umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+_FILE_MODE = 0o666 & ~_read_umask()  # what open() would give: mkstemp's files are 0600
+
+
 def _reason(err: OSError, path: Path) -> str:
     """``strerror``, plus the path the system names when it is not ``path`` itself."""
     text = err.strerror or str(err)
@@ -73,6 +82,7 @@ def atomic_write(path: str | Path, write: Callable[[BinaryIO], None]) -> None:
     try:
         fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         tmp = Path(name)
+        os.fchmod(fd, _FILE_MODE)
         with _open_temp(fd) as f:
             write(f)
             f.flush()
@@ -124,7 +134,7 @@ def read_text(
     except OSError as err:
         raise error(f"cannot read {what} {path}: {_reason(err, path)}") from err
     if size > max_bytes:
-        raise error(f"{what} {path} is {size / 2**20:.0f} MiB; at most {max_bytes >> 20} MiB of text is expected")
+        raise error(f"{what} {path} is {size:,} bytes; a text file of at most {max_bytes:,} bytes is expected")
     data = read_bytes(path, what, error)
     nul = data.find(b"\0")
     if nul >= 0:

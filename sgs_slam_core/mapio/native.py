@@ -8,6 +8,7 @@ depth, int32 labels: about 2.8 MB per 640x480 keyframe) so that mapping resumes 
 
 from __future__ import annotations
 
+import io
 import pickle
 import zipfile
 from dataclasses import dataclass, field
@@ -98,7 +99,9 @@ def save_map(path: str | Path, m: MapFile) -> None:
         "keyframe_images": [_keyframe_dict(kf) for kf in m.keyframe_images],
         "frames_processed": m.frames_processed,
     }
-    atomic_write(path, lambda f: torch.save(payload, f))
+    buffer = io.BytesIO()  # torch.save turns a failing file write (disk full) into a RuntimeError: write it ourselves
+    torch.save(payload, buffer)
+    atomic_write(path, lambda f: f.write(buffer.getbuffer()))
 
 
 def load_map(path: str | Path, device: torch.device | str = "cpu") -> MapFile:

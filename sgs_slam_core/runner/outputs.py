@@ -34,11 +34,11 @@ def _occupied(out: Path) -> bool:
 
 
 def check_run_dir(out: Path, overwrite: bool) -> None:
-    """Raise unless ``out`` is absent, empty, or may be replaced (call before any long work)."""
+    """Raise unless ``out`` is absent, an empty folder, or a folder that may be replaced (call before any work)."""
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"output folder {out} exists and is a file (give a folder)")
     if _occupied(out) and not overwrite:
         raise DatasetError(f"output folder {out} exists and is not empty (use --overwrite to replace it)")
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"output folder {out} exists and is a file")
 
 
 def prepare_run_dir(out: Path, overwrite: bool) -> bool:
