@@ -29,7 +29,7 @@ from msg_adapters import (
     pose_to_c2w,
     rgb_from_image,
 )
-from sgs_slam_core.datasets.base import DatasetOptions, resize_frame
+from sgs_slam_core.datasets.base import DatasetOptions, check_frame_size, resize_frame
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.fileio import read_text
 from sgs_slam_core.frame import Frame
@@ -164,6 +164,7 @@ class BagDataset:
         native = self._intrinsics_at(self._frames[0].stamp_ns)
         self._native = native
         self._intrinsics = native if self.options.downscale == 1.0 else native.scaled(1.0 / self.options.downscale)
+        check_frame_size(self._intrinsics, self.options)
 
     # ------------------------------------------------------------------ indexing
     def _index(self) -> tuple[list[_FrameIndex], list[tuple[int, MessageRef]], dict[int, MessageRef]]:

@@ -99,8 +99,6 @@ def run(args: argparse.Namespace) -> int:
     if args.c2w is not None:
         poses = [read_c2w(args.c2w)]
     elif args.trajectory is not None:
-        if not args.trajectory.is_file():
-            raise DatasetError(f"{args.trajectory} does not exist")
         poses = list(read_tum_trajectory(args.trajectory)[1])
         if not poses:
             raise DatasetError(f"{args.trajectory} holds no pose")

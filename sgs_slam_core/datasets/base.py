@@ -22,16 +22,21 @@ from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelTable
 
 __all__ = [
+    "MIN_IMAGE_SIDE",
     "Dataset",
     "DatasetOptions",
     "FrameRecord",
     "RecordDataset",
+    "check_frame_size",
     "read_color",
     "read_depth_png",
     "read_label_png",
     "resize_frame",
     "rigid_or_none",
 ]
+
+
+MIN_IMAGE_SIDE = 16  # px: below this the SSIM window (11 px) and tracking have too little to work with
 
 
 @dataclass(frozen=True)
@@ -136,6 +141,15 @@ def read_label_png(path: Path) -> np.ndarray:  # [H, W] int32
     return raw.astype(np.int32)
 
 
+def check_frame_size(k: Intrinsics, options: DatasetOptions) -> None:
+    """Refuse frames smaller than :data:`MIN_IMAGE_SIDE` (after ``options.downscale``)."""
+    if min(k.width, k.height) < MIN_IMAGE_SIDE:
+        raise DatasetError(
+            f"downscale {options.downscale:g} leaves {k.width}x{k.height} px frames; "
+            f"SLAM and its metrics need at least {MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE}"
+        )
+
+
 def rigid_or_none(matrix: np.ndarray, where: str, tolerance: float = 1e-3) -> np.ndarray | None:  # [4, 4]
     """A ground-truth camera-to-world matrix, None when it is not finite (a frame without ground truth).
 
@@ -189,6 +203,7 @@ class RecordDataset:
         self._depth_scale = depth_scale
         self._table = label_table
         self._intrinsics = native if options.downscale == 1.0 else native.scaled(1.0 / options.downscale)
+        check_frame_size(self._intrinsics, options)
 
     @property
     def intrinsics(self) -> Intrinsics:

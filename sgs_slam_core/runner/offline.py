@@ -97,6 +97,7 @@ class _Loop:
     map_s: float = 0.0
     load_s: float = 0.0
     bad_frames: int = 0
+    first_skip: str = ""  # why the first skipped frame was skipped
     interrupted: bool = False  # stopped by Ctrl-C before the last frame
 
 
@@ -116,6 +117,7 @@ def _process_all(slam: Slam, dataset: Dataset, show_progress: bool, should_stop:
             step = slam.process(frame)
         except (FrameError, DatasetError) as err:
             loop.bad_frames += 1
+            loop.first_skip = loop.first_skip or f"frame {i}: {err}"
             log.warning("frame %d skipped: %s", i, err)
             continue
         loop.frame_indices.append(i)
@@ -131,7 +133,7 @@ def _process_all(slam: Slam, dataset: Dataset, show_progress: bool, should_stop:
                 extra = f"{_ate_so_far(loop.poses, gts)}  {extra}"
             bar.update(i + 1, extra)
     if not loop.frame_indices and not loop.interrupted:
-        raise DatasetError(f"no frame could be processed ({loop.bad_frames} skipped; the log says why)")
+        raise DatasetError(f"no frame could be processed: {loop.bad_frames} skipped, the first one: {loop.first_skip}")
     return loop
 
 
