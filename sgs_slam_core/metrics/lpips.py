@@ -9,6 +9,8 @@ state dict (``alexnet-owt-7be5be79.pth``) and ``SGS_SLAM_LPIPS_LINEAR`` at the L
 from __future__ import annotations
 
 import os
+import pickle
+import zipfile
 from pathlib import Path
 
 import torch
@@ -65,6 +67,11 @@ class Lpips(nn.Module):
             lin.weight.data.copy_(linear[f"lin{i}.model.1.weight"])
 
 
+# what torch.load and load_state_dict raise for a file that is not the expected state dict
+_LOAD_ERRORS = (OSError, RuntimeError, KeyError, ValueError, AttributeError, EOFError, pickle.UnpicklingError,
+                zipfile.BadZipFile)  # fmt: skip
+
+
 def load_lpips(device: torch.device | str = "cpu") -> tuple[Lpips | None, str]:
     """The metric with pretrained weights, or ``(None, why not)``."""
     paths = {name: os.environ.get(f"SGS_SLAM_LPIPS_{name}") for name in ("ALEXNET", "LINEAR")}
@@ -74,6 +81,6 @@ def load_lpips(device: torch.device | str = "cpu") -> tuple[Lpips | None, str]:
     try:
         model = Lpips()
         model.load(torch.load(paths["ALEXNET"], map_location="cpu"), torch.load(paths["LINEAR"], map_location="cpu"))
-    except (OSError, RuntimeError, KeyError) as err:
-        return None, f"LPIPS weights could not be loaded: {err}"
+    except _LOAD_ERRORS as err:
+        return None, f"LPIPS weights could not be loaded: {type(err).__name__}: {err}"
     return model.eval().to(device), ""

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from sgs_slam_core.errors import DatasetError
-from sgs_slam_core.fileio import write_text
+from sgs_slam_core.fileio import read_text, write_text
 
 __all__ = ["METRIC_ROWS", "format_table", "read_metrics", "write_metrics"]
 
@@ -70,6 +70,6 @@ def write_metrics(path: Path, metrics: dict[str, Any]) -> None:
 def read_metrics(path: Path) -> dict[str, Any]:
     """Load a ``metrics.json``."""
     try:
-        return json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
+        return json.loads(read_text(path, "metrics file"))
+    except json.JSONDecodeError as err:
         raise DatasetError(f"cannot read metrics {path}: {err}") from err
