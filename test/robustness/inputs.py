@@ -107,6 +107,27 @@ def replica_non_rigid(env: Env) -> Path:
     return root
 
 
+# ---------------------------------------------------------------------------------------------- ScanNet
+def scannet_tiny(env: Env, tsv: bytes | None = None, pose_1: str | None = None, intrinsic: str | None = None) -> Path:
+    """A 3-frame ScanNet export (64x48) with optional replacements of the TSV, pose 1 and intrinsics."""
+    root = env.tmp / "scans" / "scene0000_00"
+    for sub in ("color", "depth", "pose", "intrinsic", "label-filt"):
+        (root / sub).mkdir(parents=True)
+    k = np.eye(4)
+    k[0, 0], k[1, 1], k[0, 2], k[1, 2] = 48.0, 48.0, 31.5, 23.5
+    (root / "intrinsic" / "intrinsic_color.txt").write_text(intrinsic or "\n".join(" ".join(map(str, r)) for r in k))
+    for i in range(3):
+        cv2.imwrite(str(root / "color" / f"{i}.jpg"), np.full((48, 64, 3), 128, np.uint8))
+        cv2.imwrite(str(root / "depth" / f"{i}.png"), np.full((48, 64), 1500, np.uint16))
+        cv2.imwrite(str(root / "label-filt" / f"{i}.png"), np.ones((48, 64), np.uint16))
+        pose = "\n".join(" ".join(map(str, r)) for r in np.eye(4))
+        (root / "pose" / f"{i}.txt").write_text(pose_1 if i == 1 and pose_1 is not None else pose)
+    (root.parent / "scannetv2-labels.combined.tsv").write_bytes(
+        tsv or b"id\traw_category\tcategory\tcount\tnyu40id\tnyu40class\n1\twall\twall\t10\t1\twall\n"
+    )
+    return root
+
+
 # ---------------------------------------------------------------------------------------------- bags
 def bag_with_metadata(env: Env, name: str, **custom: str) -> Path:
     """A copy of the tiny bag with these custom_data entries in metadata.yaml."""

@@ -34,6 +34,7 @@ from .inputs import (
     replica_non_rigid,
     replica_with,
     run_with_yaml,
+    scannet_tiny,
     sgsmap_with,
     tum_from_tiny,
     tum_latin1,
@@ -79,6 +80,27 @@ def failing(target: str, error: BaseException) -> Patch:
         mp.setattr(target, fail)
 
     return install
+
+
+def lpips_weights(content: bytes) -> Patch:
+    def install(env: Env, mp: pytest.MonkeyPatch) -> None:
+        (env.tmp / "w.pth").write_bytes(content)
+        mp.setenv("SGS_SLAM_LPIPS_ALEXNET", str(env.tmp / "w.pth"))
+        mp.setenv("SGS_SLAM_LPIPS_LINEAR", str(env.tmp / "w.pth"))
+
+    return install
+
+
+def convert_fails_midway(env: Env, mp: pytest.MonkeyPatch) -> None:
+    """The bag writer runs out of disk after writing part of the bag."""
+    import bags.cli
+
+    def convert(dataset: object, out: Path, *args: object, **kwargs: object) -> None:
+        out.mkdir()
+        (out / "b_0.mcap").write_bytes(b"\x89MCAP0\r\n partial")
+        raise OSError(28, "No space left on device", str(out / "b_0.mcap"))
+
+    mp.setattr(bags.cli, "convert", convert)
 
 
 def run_tiny(out: str, *extra: str) -> Callable[[Env], list[str]]:
@@ -211,6 +233,17 @@ CASES = [
     Case("replica-corrupt-frame-is-skipped", lambda e: ["run", str(replica_with(e, "p", "frames/frame000001.png",
          b"not a png")), "--out", e.path("r"), *FAST_RUN], 0, exists=("r/trajectory.txt", "r/metrics.json"),
          check=lambda e: metrics(e, "r")["bad_frames"] == 1 and metrics(e, "r")["frames"] == 2),
+    Case("scannet-tsv-id-beyond-16-bit", lambda e: ["run", str(scannet_tiny(e, tsv=b"id\tnyu40id\n1000000000000\t5\n")),
+         "--out", e.path("r"), *FAST_RUN], 1, "id: must be in 0..65535, got 1000000000000", absent=("r",)),
+    Case("scannet-tsv-latin1", lambda e: ["convert", str(scannet_tiny(e,
+         tsv="id\tnyu40id\tcategory\n1\t1\tchaise d\xe9pli\xe9e\n".encode("latin-1"))), "--out", e.path("b")], 0,
+         exists=("b",), tool="sgs-slam-bag"),
+    Case("scannet-pose-non-rigid", lambda e: ["run", str(scannet_tiny(e, pose_1="1 0 0 0\n0 1 0 0\n0 0 5 0\n"
+         "0 0 0 1\n")), "--out", e.path("r"), *FAST_RUN], 1, "1.txt: not a rigid transform", absent=("r",)),
+    Case("scannet-pose-ragged", lambda e: ["run", str(scannet_tiny(e, pose_1="1 0 0\n0 1 0 0\n")), "--out",
+         e.path("r"), *FAST_RUN], 1, "1.txt must hold a 4x4 matrix", absent=("r",)),
+    Case("scannet-intrinsics-zero-focal", lambda e: ["run", str(scannet_tiny(e, intrinsic="0 0 0 0\n" * 4)), "--out",
+         e.path("r"), *FAST_RUN], 1, "focal lengths must be positive", absent=("r",)),
     Case("config-file-binary", lambda e: ["run", str(e.tiny), "--config", str(e.copy(e.run / "map.sgsmap", "c.yaml")),
          "--out", e.path("r"), *FAST_RUN], 1, "c.yaml is a binary file", absent=("r",)),
     Case("bag-depth-units-abc", lambda e: ["run", str(bag_with_metadata(e, "b", depth_units_per_metre="abc")),
@@ -292,6 +325,13 @@ CASES = [
          "2 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1")), "--out", e.path("v")], 1, "is not a rotation", absent=("v",)),
     Case("render-trajectory-binary", lambda e: ["render", str(e.run / "map.sgsmap"), "--trajectory",
          str(e.run / "map.sgsmap"), "--out", e.path("v")], 1, "is a binary file", absent=("v",)),
+    Case("lpips-weights-garbage", run_tiny("r"), 0, exists=("r/metrics.json",), fs=lpips_weights(b"\x00garbage"),
+         check=lambda e: "LPIPS weights could not be loaded" in metrics(e, "r")["lpips_note"]),
+    Case("bag-convert-read-only", lambda e: ["convert", str(e.tiny), "--out", e.path("ro/b"), "--max-frames", "2"],
+         1, "Read-only file system", absent=("ro/b",), fs=read_only("ro"), tool="sgs-slam-bag"),
+    Case("bag-convert-disk-full-removes-the-partial-bag", lambda e: ["convert", str(e.tiny), "--out", e.path("b"),
+         "--max-frames", "2"], 1, "No space left on device", absent=("b",), fs=convert_fails_midway,
+         tool="sgs-slam-bag"),
     # ------------------------------------------------------------------ what is not the user's fault
     Case("internal-error-is-one-line-asking-for-a-report", lambda e: ["labels", str(e.run / "map.sgsmap")], 70,
          "internal error: TypeError: boom -- this is a bug, please report it",
