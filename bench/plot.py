@@ -32,8 +32,15 @@ def _nice_max(value: float) -> float:
     return float(10 * exp)
 
 
-def line_panel(series: list[Series], title: str, y_label: str, size: tuple[int, int] = (720, 300)) -> np.ndarray:
-    """A white panel [H, W, 3] with axes, 5 y ticks, the lines and a legend."""
+def line_panel(
+    series: list[Series],
+    title: str,
+    y_label: str,
+    size: tuple[int, int] = (720, 300),
+    x_label: str = "frame",
+    x_step: float = 1,
+) -> np.ndarray:
+    """A white panel [H, W, 3] with axes, 5 y ticks, the lines and a legend (value i is at x = i * x_step)."""
     width, height = size
     left, right, top, bottom = 70, 15, 30, 35
     img = np.full((height, width, 3), 255, np.uint8)
@@ -52,8 +59,9 @@ def line_panel(series: list[Series], title: str, y_label: str, size: tuple[int, 
     for k in range(5):
         frame = round((frames - 1) * k / 4)
         x, _ = xy(frame, 0)
-        cv2.putText(img, str(frame), (x - 8, height - bottom + 15), _FONT, 0.38, (60, 60, 60), 1, cv2.LINE_AA)
-    cv2.putText(img, "frame", (width // 2 - 15, height - 6), _FONT, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+        text = f"{frame * x_step:g}"
+        cv2.putText(img, text, (x - 4 * len(text), height - bottom + 15), _FONT, 0.38, (60, 60, 60), 1, cv2.LINE_AA)
+    cv2.putText(img, x_label, (width // 2 - 4 * len(x_label), height - 6), _FONT, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.putText(img, f"{title} ({y_label})", (left, 20), _FONT, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     for n, s in enumerate(series):
         points = np.array([xy(i, v) for i, v in enumerate(s.values) if np.isfinite(v)], np.int32)
