@@ -76,7 +76,7 @@ def request_from_args(args: argparse.Namespace) -> EditRequest:
 def run(args: argparse.Namespace) -> int:
     """Load, edit, write, print what changed."""
     if args.out.suffix.lower() not in MAP_SUFFIXES:
-        raise MapFileError(f"--out must end in {' or '.join(MAP_SUFFIXES)}, got {args.out.name}")
+        raise MapFileError(f"--out {args.out}: map files end in {' or '.join(MAP_SUFFIXES)}")
     if args.out.exists() and not args.overwrite:
         raise MapFileError(f"{args.out} exists (use --overwrite to replace it)")
     if args.out.resolve() == args.map.resolve():

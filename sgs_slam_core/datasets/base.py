@@ -142,8 +142,8 @@ def read_label_png(path: Path) -> np.ndarray:  # [H, W] int32
 
 
 def check_frame_size(k: Intrinsics, options: DatasetOptions) -> None:
-    """Refuse frames smaller than :data:`MIN_IMAGE_SIDE` (after ``options.downscale``)."""
-    if min(k.width, k.height) < MIN_IMAGE_SIDE:
+    """Refuse a ``downscale`` that leaves frames smaller than :data:`MIN_IMAGE_SIDE` (native sizes are the data's)."""
+    if options.downscale != 1.0 and min(k.width, k.height) < MIN_IMAGE_SIDE:
         raise DatasetError(
             f"downscale {options.downscale:g} leaves {k.width}x{k.height} px frames; "
             f"SLAM and its metrics need at least {MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE}"

@@ -316,7 +316,7 @@ CASES = [
     Case("edit-unknown-class-name", lambda e: ["edit", str(e.run / "map.sgsmap"), "--remove-label", "unicorn",
          "--out", e.path("x.sgsmap")], 1, "unknown class name 'unicorn'", absent=("x.sgsmap",)),
     Case("edit-out-wrong-suffix", lambda e: ["edit", str(e.run / "map.sgsmap"), "--remove-label", "1", "--out",
-         e.path("x.obj")], 1, "--out must end in .sgsmap or .ply", absent=("x.obj",)),
+         e.path("x.obj")], 1, "x.obj: map files end in .sgsmap or .ply", absent=("x.obj",)),
     Case("render-c2w-binary", lambda e: ["render", str(e.run / "map.sgsmap"), "--c2w", str(text(e, "c.txt",
          "1 0 0 0\x00")), "--out", e.path("v")], 1, "c.txt is a binary file (byte 7 is NUL)", absent=("v",)),
     Case("render-c2w-huge", lambda e: ["render", str(e.run / "map.sgsmap"), "--c2w", str(e.run / "map.sgsmap"),

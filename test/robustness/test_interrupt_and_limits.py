@@ -75,7 +75,11 @@ def test_ctrl_c_before_the_first_frame_leaves_no_run_folder(tiny_scene, tmp_path
         signal.raise_signal(signal.SIGINT)  # no stop request is installed yet: a plain KeyboardInterrupt
 
     monkeypatch.setattr(offline, "dump_yaml", dump_then_interrupt)
-    assert main(["run", str(tiny_scene), "--out", str(out), "--max-frames", "3", *FAST]) == 130
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # Python's own, as in a fresh process
+    try:
+        assert main(["run", str(tiny_scene), "--out", str(out), "--max-frames", "3", *FAST]) == 130
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert not out.exists()
 
 
@@ -87,7 +91,8 @@ def cli(*args: str, **kwargs) -> subprocess.Popen:
 
 def test_a_real_ctrl_c_leaves_a_complete_folder_or_none(tiny_scene, tmp_path):
     out = tmp_path / "run"
-    proc = cli("run", str(tiny_scene), "--out", str(out), "--quiet", "--set", "tracking.iterations=40")
+    iterations = ("--set", "tracking.iterations=15", "--set", "mapping.iterations=15")  # ~0.5 s a frame: lands mid-run
+    proc = cli("run", str(tiny_scene), "--out", str(out), "--quiet", *iterations)
     assert proc.stderr is not None
     for line in proc.stderr:  # the run prints this line just before its frame loop
         if "frames at 64x48" in line:
