@@ -9,6 +9,8 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
+from sgs_slam_core.errors import SgsSlamError
+
 __all__ = ["run_nodes"]
 
 
@@ -24,7 +26,7 @@ def run_nodes(build: Callable[[], Sequence[Node]], args: Sequence[str] | None = 
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ValueError as err:  # bad parameters: one line, exit 1
+    except (ValueError, SgsSlamError) as err:  # bad parameters or config (preset, config_file): one line, exit 1
         print(f"error: {err}", file=sys.stderr)
         return 1
     finally:

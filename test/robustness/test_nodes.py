@@ -4,6 +4,9 @@ and size disagree. The node must count what it drops, keep its memory bounded an
 from __future__ import annotations
 
 import dataclasses
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -215,3 +218,20 @@ def test_label_adapter_bounds_ids_without_a_pass_for_narrow_encodings():
     negative = image_msg(np.full((2, 2), -1, np.int32), "32SC1", 0, CAM)
     with pytest.raises(AdapterError, match="negative"):
         labels_from_image(negative)
+
+
+@pytest.mark.parametrize(
+    ("param", "message"),
+    [
+        ("preset:=nope", "unknown preset 'nope'"),
+        ("overrides:=[tracking.iterations=abc]", "tracking.iterations: expected an integer, got 'abc'"),
+        ("config_file:=/nonexistent/cfg.yaml", "cannot read config file /nonexistent/cfg.yaml"),
+    ],
+)
+def test_a_bad_configuration_stops_the_node_with_one_line(param, message):
+    env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    proc = subprocess.run([sys.executable, "-m", "sgs_slam_ros.slam_node", "--ros-args", "-p", param],
+                          capture_output=True, text=True, timeout=120, env=env, check=False)  # fmt: skip
+    err = proc.stderr.strip()
+    assert proc.returncode == 1 and "Traceback" not in err, err
+    assert message in err.splitlines()[-1], err
