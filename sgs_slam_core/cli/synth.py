@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         generate(args.out, cfg, overwrite=args.overwrite, progress=lambda done, _: bar.update(done))
     except BaseException:
-        if fresh:  # a half-written sequence is of no use: leave nothing behind
+        if fresh or args.overwrite:  # a half-written sequence is of no use (--overwrite had emptied the folder)
             shutil.rmtree(args.out, ignore_errors=True)
         raise
     print(f"wrote {cfg.frames} frames of {cfg.width}x{cfg.height} to {args.out} in {time.perf_counter() - t0:.1f} s")

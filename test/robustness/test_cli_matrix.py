@@ -9,6 +9,7 @@ is left behind. Add a row for every bug found.
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,6 +42,8 @@ from .inputs import (
 )
 
 Patch = Callable[[Env, pytest.MonkeyPatch], None]
+# what a read-only folder says: root ignores permissions, so there it is faked as a read-only mount
+READ_ONLY = "Read-only file system" if os.geteuid() == 0 else "Permission denied"
 
 
 @dataclass(frozen=True)
@@ -128,17 +131,17 @@ def check_run_statuses(folder: str, status: str, **values: object) -> Callable[[
 # fmt: off
 CASES = [
     # ------------------------------------------------------------------ outputs: read-only folders
-    Case("run-out-read-only", run_tiny("ro/run"), 1, "Read-only file system", absent=("ro/run",),
+    Case("run-out-read-only", run_tiny("ro/run"), 1, READ_ONLY, absent=("ro/run",),
          fs=read_only("ro")),
     Case("edit-out-read-only", lambda e: ["edit", str(e.run / "map.sgsmap"), "--remove-label", "1", "--out",
-         e.path("ro/e.sgsmap")], 1, "ro/e.sgsmap: Read-only file system", absent=("ro/e.sgsmap",),
+         e.path("ro/e.sgsmap")], 1, "ro/e.sgsmap: " + READ_ONLY, absent=("ro/e.sgsmap",),
          fs=read_only("ro")),
     Case("export-out-read-only", lambda e: ["export", str(e.run / "map.sgsmap"), "--out", e.path("ro/e.ply")],
-         1, "ro/e.ply: Read-only file system", absent=("ro/e.ply",), fs=read_only("ro")),
+         1, "ro/e.ply: " + READ_ONLY, absent=("ro/e.ply",), fs=read_only("ro")),
     Case("render-out-read-only", lambda e: ["render", str(e.run / "map.sgsmap"), "--orbit", "2", "--out",
-         e.path("ro/views")], 1, "ro/views: Read-only file system", absent=("ro/views",), fs=read_only("ro")),
+         e.path("ro/views")], 1, "ro/views: " + READ_ONLY, absent=("ro/views",), fs=read_only("ro")),
     Case("synth-out-read-only", lambda e: ["synth", e.path("ro/s"), "--preset", "tiny", "--frames", "2"], 1,
-         "Read-only file system", absent=("ro/s",), fs=read_only("ro")),
+         READ_ONLY, absent=("ro/s",), fs=read_only("ro")),
     # ------------------------------------------------------------------ outputs: a full disk
     Case("run-disk-full-at-the-map", run_tiny("full"), 1, "full/map.sgsmap: No space left on device",
          exists=("full/trajectory.txt", "full/frames.csv", "full/config.yaml", "full/run.yaml"),
@@ -148,6 +151,8 @@ CASES = [
          fs=full_disk(100)),
     Case("synth-disk-full", lambda e: ["synth", e.path("s"), "--preset", "tiny"], 1, "No space left on device",
          absent=("s",), fs=full_disk(30_000)),
+    Case("synth-overwrite-disk-full", lambda e: ["synth", str(e.copy(e.tiny, "s")), "--preset", "tiny",
+         "--overwrite"], 1, "No space left on device", absent=("s",), fs=full_disk(30_000)),
     Case("render-disk-full", lambda e: ["render", str(e.run / "map.sgsmap"), "--orbit", "8", "--out", e.path("v")],
          1, "No space left on device", exists=("v",), fs=full_disk(15_000)),
     Case("export-disk-full", lambda e: ["export", str(e.run / "map.sgsmap"), "--out", e.path("x.ply")], 1,
@@ -328,7 +333,7 @@ CASES = [
     Case("lpips-weights-garbage", run_tiny("r"), 0, exists=("r/metrics.json",), fs=lpips_weights(b"\x00garbage"),
          check=lambda e: "LPIPS weights could not be loaded" in metrics(e, "r")["lpips_note"]),
     Case("bag-convert-read-only", lambda e: ["convert", str(e.tiny), "--out", e.path("ro/b"), "--max-frames", "2"],
-         1, "Read-only file system", absent=("ro/b",), fs=read_only("ro"), tool="sgs-slam-bag"),
+         1, READ_ONLY, absent=("ro/b",), fs=read_only("ro"), tool="sgs-slam-bag"),
     Case("bag-convert-disk-full-removes-the-partial-bag", lambda e: ["convert", str(e.tiny), "--out", e.path("b"),
          "--max-frames", "2"], 1, "No space left on device", absent=("b",), fs=convert_fails_midway,
          tool="sgs-slam-bag"),
