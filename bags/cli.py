@@ -3,20 +3,27 @@
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from rosbags.rosbag2 import WriterError
+
 from bags.errors import BagError
 from bags.info import bag_info
 from bags.writer import convert
-from sgs_slam_core.cli import run_command
+from msg_adapters import AdapterError
+from sgs_slam_core.cli import add_debug_flag, run_command
+from sgs_slam_core.cli.args import IntRange
 from sgs_slam_core.cli.progress import ProgressBar
 from sgs_slam_core.cli.run import default_preset
 from sgs_slam_core.datasets import FORMATS, DatasetOptions, open_dataset
 
 __all__ = ["main"]
+
+_FRAMES = IntRange(1)
 
 
 def _convert(args: argparse.Namespace) -> int:
@@ -27,8 +34,15 @@ def _convert(args: argparse.Namespace) -> int:
     bar = ProgressBar(len(dataset), "convert")
     t0 = time.perf_counter()
     preset = default_preset(args.input, args.format)
-    summary = convert(dataset, out, compress=args.compress == "zstd", dataset_name=f"{dataset.name}/{args.input.name}",
-                      progress=lambda done, _: bar.update(done), preset=preset)  # fmt: skip
+    try:
+        name = f"{dataset.name}/{args.input.name}"
+        summary = convert(dataset, out, compress=args.compress == "zstd", dataset_name=name,
+                          progress=lambda done, _: bar.update(done), preset=preset)  # fmt: skip
+    except BaseException as err:
+        shutil.rmtree(out, ignore_errors=True)  # a bag without its metadata is of no use; it did not exist before
+        if isinstance(err, WriterError):
+            raise BagError(f"cannot write the bag {out}: {err}") from err
+        raise
     elapsed = time.perf_counter() - t0
     size_mib, rate = summary.bytes / 2**20, summary.frames / elapsed
     print(f"wrote {summary.frames} frames ({size_mib:.1f} MiB, {rate:.1f} frames/s) to {out} (preset {preset})")
@@ -48,18 +62,19 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("input", type=Path, help="TUM, Replica, ScanNet or synthetic folder")
     c.add_argument("--format", default="auto", choices=["auto", *(f for f in FORMATS if f != "mcap")])
     c.add_argument("--out", type=Path, help="bag folder to create (default: INPUT_bag); never overwritten")
-    c.add_argument("--max-frames", type=int, help="convert at most N frames")
+    c.add_argument("--max-frames", type=_FRAMES, help=f"convert at most N frames ({_FRAMES.bounds})")
     c.add_argument("--compress", choices=["zstd", "none"], default="zstd", help="MCAP chunk compression")
     c.set_defaults(func=_convert)
     i = sub.add_parser("info", help="topics, counts, duration, encodings and label table of a bag")
     i.add_argument("bag", type=Path)
     i.set_defaults(func=_info)
+    add_debug_flag(parser, sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; errors are one line on stderr and exit code 1."""
-    return run_command("sgs-slam-bag", build_parser(), argv)
+    """Entry point; errors are one line on stderr: exit 1 for bad input, 2 for usage, 70 for a bug."""
+    return run_command("sgs-slam-bag", build_parser(), argv, (AdapterError,))
 
 
 if __name__ == "__main__":

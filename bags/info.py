@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -14,7 +13,7 @@ from mcap_ros2.decoder import DecoderFactory
 from bags.cdr_image import decode_image
 from bags.errors import BagError
 from bags.mcap_index import McapIndex
-from bags.reader import bag_file, read_custom_data
+from bags.reader import bag_file, read_custom_data, read_label_table
 
 __all__ = ["BagInfo", "TopicInfo", "bag_info"]
 
@@ -63,9 +62,13 @@ class BagInfo:
             extra = f"  {t.encoding} {t.size}" if t.encoding else ""
             lines.append(f"  {t.name.ljust(width)}  {t.count:6d} x {t.msgtype}{extra}")
         if "label_table" in self.custom:
-            table = json.loads(self.custom["label_table"])
-            names = [f"{c['id']}:{c['name']}" for c in table.get("classes", []) if c["id"]]
-            lines.append(f"labels:   {table.get('name', '')} ({len(names)} classes) {' '.join(names[:40])}")
+            try:
+                table = read_label_table(self.path, self.custom)
+            except BagError as err:
+                lines.append(f"labels:   unreadable ({err})")
+            else:
+                names = [f"{c.id}:{c.name}" for c in table if c.id]
+                lines.append(f"labels:   {table.name} ({len(names)} classes) {' '.join(names[:40])}")
         return "\n".join(lines)
 
 

@@ -29,15 +29,28 @@ from msg_adapters import (
     pose_to_c2w,
     rgb_from_image,
 )
-from sgs_slam_core.datasets.base import DatasetOptions, resize_frame
+from sgs_slam_core.datasets.base import DatasetOptions, check_frame_size, resize_frame
 from sgs_slam_core.errors import SgsSlamError
+from sgs_slam_core.fileio import read_text
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelError, LabelTable
+from sgs_slam_core.validate import as_float
 
-__all__ = ["BagDataset", "bag_file", "open_bag", "open_index", "read_custom_data", "read_metadata"]
+__all__ = [
+    "BagDataset",
+    "bag_file",
+    "open_bag",
+    "open_index",
+    "read_custom_data",
+    "read_depth_units",
+    "read_label_table",
+    "read_metadata",
+]
 
-_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml: 20x faster on a large label table
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+DEFAULT_DEPTH_UNITS_PER_M = 1000.0
+DEPTH_UNITS_KEYS = ("depth_units_per_metre", "depth_scale")  # libyaml: 20x faster on a large label table
 _IMAGE = "sensor_msgs/msg/Image"
 
 
@@ -57,17 +70,45 @@ def read_metadata(path: Path) -> dict[str, Any]:
     if not meta.is_file():
         return {}
     try:
-        info = yaml.load(meta.read_text(), Loader=_YAML_LOADER).get("rosbag2_bagfile_information", {})
-    except (yaml.YAMLError, AttributeError) as err:
+        data = yaml.load(read_text(meta, "bag metadata", BagError), Loader=_YAML_LOADER)
+    except yaml.YAMLError as err:
         raise BagError(f"{meta} is not valid rosbag2 metadata: {err}") from err
+    if not isinstance(data, dict):
+        raise BagError(f"{meta} is not valid rosbag2 metadata: expected a mapping")
+    info = data.get("rosbag2_bagfile_information", {})
     if not isinstance(info, dict):
         raise BagError(f"{meta} is not valid rosbag2 metadata: rosbag2_bagfile_information is not a mapping")
     return info
 
 
 def read_custom_data(path: Path) -> dict[str, str]:
-    """``custom_data`` of a rosbag2 folder's metadata.yaml (empty for a bare .mcap)."""
-    return {str(k): str(v) for k, v in (read_metadata(path).get("custom_data") or {}).items()}
+    """``custom_data`` of a rosbag2 folder's metadata.yaml (empty for a bare .mcap); unknown keys are kept."""
+    custom = read_metadata(path).get("custom_data") or {}
+    if not isinstance(custom, dict):
+        raise BagError(f"{path}: custom_data in metadata.yaml must be a mapping, got {type(custom).__name__}")
+    return {str(k): str(v) for k, v in custom.items()}
+
+
+def read_label_table(path: Path, custom: dict[str, str]) -> LabelTable:
+    """The label table stored in a bag's metadata (an empty table when there is none)."""
+    if "label_table" not in custom:
+        return LabelTable()
+    try:
+        return LabelTable.from_dict(json.loads(custom["label_table"]))
+    except (json.JSONDecodeError, LabelError) as err:
+        raise BagError(f"{path}: metadata custom_data label_table: {err}") from err
+
+
+def read_depth_units(path: Path, custom: dict[str, str]) -> float:
+    """16-bit depth units per metre from the bag's metadata (1000 when absent).
+
+    The key is ``depth_units_per_metre``; ``depth_scale`` (the nodes' parameter name) is read too.
+    """
+    values = {k: as_float(custom[k], f"{path}: metadata custom_data {k}", BagError, 0.0, lo_open=True)
+              for k in DEPTH_UNITS_KEYS if k in custom}  # fmt: skip
+    if len(set(values.values())) > 1:
+        raise BagError(f"{path}: metadata custom_data disagree on the depth units: {values}")
+    return next(iter(values.values()), DEFAULT_DEPTH_UNITS_PER_M)
 
 
 def open_index(file: Path) -> McapIndex:
@@ -112,13 +153,8 @@ class BagDataset:
         self.options = options or DatasetOptions()
         custom = read_custom_data(self.path)
         self.dataset_name = custom.get("dataset", "")
-        self.depth_scale = depth_units_per_metre or float(custom.get("depth_units_per_metre", 1000.0))
-        try:
-            self._table = (
-                LabelTable.from_dict(json.loads(custom["label_table"])) if "label_table" in custom else LabelTable()
-            )
-        except (json.JSONDecodeError, LabelError) as err:
-            raise BagError(f"{self.path}: bad label table in metadata: {err}") from err
+        self.depth_scale = depth_units_per_metre or read_depth_units(self.path, custom)
+        self._table = read_label_table(self.path, custom)
         self._mcap = open_index(self.file)
         frames, infos, poses = self._index()
         self._infos, self._poses = infos, poses
@@ -128,6 +164,7 @@ class BagDataset:
         native = self._intrinsics_at(self._frames[0].stamp_ns)
         self._native = native
         self._intrinsics = native if self.options.downscale == 1.0 else native.scaled(1.0 / self.options.downscale)
+        check_frame_size(self._intrinsics, self.options)
 
     # ------------------------------------------------------------------ indexing
     def _index(self) -> tuple[list[_FrameIndex], list[tuple[int, MessageRef]], dict[int, MessageRef]]:

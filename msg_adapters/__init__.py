@@ -9,6 +9,7 @@ from msg_adapters.camera_info import camera_info_fields, camera_info_to_intrinsi
 from msg_adapters.errors import AdapterError
 from msg_adapters.image import (
     ENCODINGS,
+    MAX_LABEL_ID,
     depth_from_image,
     image_fields,
     image_to_numpy,
@@ -32,6 +33,7 @@ from msg_adapters.sync import ApproximateSync
 __all__ = [
     "ENCODINGS",
     "GAUSSIAN_FIELDS",
+    "MAX_LABEL_ID",
     "POINT_DTYPE",
     "AdapterError",
     "ApproximateSync",

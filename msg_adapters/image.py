@@ -12,6 +12,7 @@ from msg_adapters.stamps import ns_to_stamp, stamp_to_ns
 
 __all__ = [
     "ENCODINGS",
+    "MAX_LABEL_ID",
     "depth_from_image",
     "image_fields",
     "image_to_numpy",
@@ -33,6 +34,7 @@ ENCODINGS: dict[str, tuple[np.dtype, int]] = {
     "32SC1": (np.dtype(np.int32), 1),
 }
 DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1")
+MAX_LABEL_ID = 65535
 LABEL_ENCODINGS = ("8UC1", "mono8", "16UC1", "mono16", "32SC1")
 
 
@@ -91,14 +93,24 @@ def depth_from_image(msg: Any, depth_scale: float = 1000.0) -> np.ndarray:  # [H
     return out
 
 
-def labels_from_image(msg: Any) -> np.ndarray:  # [H, W] int32 class ids
-    """A label image (8UC1, mono8, 16UC1, mono16, 32SC1) as class ids."""
+def labels_from_image(msg: Any, max_id: int = MAX_LABEL_ID) -> np.ndarray:  # [H, W] int32 class ids
+    """A label image (8UC1, mono8, 16UC1, mono16, 32SC1) as class ids in ``0..max_id``.
+
+    Ids size per-class tables downstream (decoding candidates, palettes, confusion matrices), so an
+    id above ``max_id`` (default 65535, what 16-bit images and bags hold) is refused rather than
+    letting a 32-bit noise image grow them without bound.
+    """
     enc = str(msg.encoding)
     if enc not in LABEL_ENCODINGS:
         raise AdapterError(f"encoding: labels must be one of {', '.join(LABEL_ENCODINGS)}, got {enc!r}")
     arr = image_to_numpy(msg).astype(np.int32)
-    if enc == "32SC1" and arr.size and arr.min() < 0:  # the only signed encoding; a pass per frame otherwise
+    if not arr.size:
+        return arr
+    limit = np.iinfo(ENCODINGS[enc][0]).max
+    if enc == "32SC1" and arr.min() < 0:  # the only signed encoding
         raise AdapterError("data: label image holds negative class ids")
+    if limit > max_id and arr.max() > max_id:  # only a wider encoding can exceed it: no pass otherwise
+        raise AdapterError(f"data: label image holds class id {int(arr.max())} > {max_id}")
     return arr
 
 

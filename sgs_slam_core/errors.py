@@ -11,8 +11,10 @@ __all__ = [
     "ConfigError",
     "DatasetError",
     "EditError",
+    "EvaluationError",
     "FrameError",
     "MapFileError",
+    "OutputError",
     "SgsSlamError",
     "ShapeError",
 ]
@@ -48,3 +50,14 @@ class MapFileError(SgsSlamError):
 
 class BackendUnavailableError(SgsSlamError):
     """A requested renderer backend cannot run here (e.g. gsplat without CUDA)."""
+
+
+class OutputError(SgsSlamError):
+    """A file or folder cannot be written (read-only, disk full, a file where a folder belongs); names it.
+
+    What was written before stays complete, and the file that failed is left absent (writes are atomic).
+    """
+
+
+class EvaluationError(SgsSlamError):
+    """Evaluating a finished run failed; the run's trajectory and map were written before it."""

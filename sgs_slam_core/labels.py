@@ -17,6 +17,7 @@ from sgs_slam_core.errors import SgsSlamError
 __all__ = ["LabelClass", "LabelError", "LabelTable", "palette_color"]
 
 UNLABELLED = 0
+MAX_CLASS_ID = 2**31 - 1  # label images hold int32 ids
 
 
 class LabelError(SgsSlamError, KeyError):
@@ -37,8 +38,8 @@ class LabelClass:
 
 def palette_color(class_id: int) -> tuple[int, int, int]:
     """Deterministic colour of an id (VOC bit-interleaving palette); id 0 is black."""
-    if class_id < 0:
-        raise LabelError(f"class ids are non-negative, got {class_id}")
+    if not 0 <= class_id <= MAX_CLASS_ID:
+        raise LabelError(f"class ids are in 0..{MAX_CLASS_ID}, got {class_id}")
     r = g = b = 0
     c = class_id
     for shift in range(7, -1, -1):
@@ -77,9 +78,9 @@ class LabelTable:
         self.name = name
         by_id: dict[int, LabelClass] = {UNLABELLED: LabelClass(UNLABELLED, "unlabelled", (0, 0, 0))}
         for cls in classes:
-            if cls.id < 0:
-                raise LabelError(f"class ids are non-negative, got {cls.id} ({cls.name!r})")
-            if not all(0 <= v <= 255 for v in cls.color) or len(cls.color) != 3:
+            if not 0 <= cls.id <= MAX_CLASS_ID:
+                raise LabelError(f"class ids are in 0..{MAX_CLASS_ID}, got {cls.id} ({cls.name!r})")
+            if len(cls.color) != 3 or not all(0 <= v <= 255 for v in cls.color):
                 raise LabelError(f"colour of class {cls.id} must be 3 values in 0..255, got {cls.color}")
             by_id[cls.id] = LabelClass(int(cls.id), str(cls.name), tuple(int(v) for v in cls.color))  # type: ignore[arg-type]
         self._by_id = dict(sorted(by_id.items()))
@@ -98,14 +99,19 @@ class LabelTable:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, object]) -> LabelTable:
-        """Inverse of :meth:`to_dict`."""
-        try:
-            classes = [
-                LabelClass(int(c["id"]), str(c["name"]), tuple(int(v) for v in c["color"]))  # type: ignore[index,arg-type]
-                for c in data["classes"]  # type: ignore[union-attr]
-            ]
-        except (KeyError, TypeError, ValueError) as err:
-            raise LabelError(f"malformed label table: {err}") from err
+        """Inverse of :meth:`to_dict`; anything else raises :class:`LabelError` naming the entry."""
+        if not isinstance(data, Mapping) or not isinstance(data.get("classes"), list):
+            raise LabelError("malformed label table: expected a mapping with a list 'classes'")
+        classes = []
+        for n, c in enumerate(data["classes"]):
+            try:
+                if not isinstance(c, Mapping) or isinstance(c["id"], bool) or not isinstance(c["color"], list | tuple):
+                    raise TypeError("expected {id, name, color: [r, g, b]}")
+                if isinstance(c["id"], float) and not c["id"].is_integer():
+                    raise TypeError(f"id {c['id']} is not an integer")
+                classes.append(LabelClass(int(c["id"]), str(c["name"]), tuple(int(v) for v in c["color"])))  # type: ignore[arg-type]
+            except (KeyError, TypeError, ValueError, OverflowError) as err:
+                raise LabelError(f"malformed label table: class {n}: {type(err).__name__} {err}") from err
         return cls(classes, name=str(data.get("name", "")))
 
     def to_dict(self) -> dict[str, object]:

@@ -22,6 +22,7 @@ from types import ModuleType
 import torch
 
 from sgs_slam_core.errors import BackendUnavailableError
+from sgs_slam_core.fileio import read_bytes
 
 __all__ = ["NativeExtension", "prepare"]
 
@@ -58,7 +59,8 @@ class NativeExtension:
     def cache_name(self, extra_cflags: tuple[str, ...] = ()) -> str:
         """The build's name under ``TORCH_EXTENSIONS_DIR``: stem and a fingerprint of what it depends on."""
         digest = hashlib.sha1()
-        for part in (self.source.read_bytes(), " ".join((*_CFLAGS, *extra_cflags)).encode(),
+        for part in (read_bytes(self.source, f"the source of {self.what}", BackendUnavailableError),
+                     " ".join((*_CFLAGS, *extra_cflags)).encode(),
                      torch.__version__.encode(), _cpu_fingerprint().encode()):  # fmt: skip
             digest.update(part)
         return f"sgs_slam_{self.stem}_{digest.hexdigest()[:12]}"
@@ -69,7 +71,10 @@ class NativeExtension:
             return True
         from torch.utils.cpp_extension import _get_build_directory  # noqa: PLC0415 - heavy, and only needed here
 
-        name = self.cache_name()
+        try:
+            name = self.cache_name()
+        except BackendUnavailableError:  # no source to build from: module() says so
+            return False
         return (Path(_get_build_directory(name, verbose=False)) / f"{name}.so").is_file()
 
     def module(self) -> ModuleType:

@@ -22,6 +22,7 @@ from sgs_slam_core.labels import LabelTable
 __all__ = ["SemanticCodec", "SemanticMode", "SemanticSettings"]
 
 SemanticMode = Literal["color", "onehot"]
+_DECODE_ELEMENTS = 1 << 24  # float32 distances per decoding chunk, whatever the number of classes
 
 
 @dataclass(frozen=True)
@@ -93,13 +94,15 @@ class SemanticCodec:
         if self.mode == "onehot":
             if candidates is None:
                 return flat.argmax(dim=1).reshape(semantic.shape[:-1])
-            ids = torch.tensor(sorted(set(candidates)), dtype=torch.long, device=semantic.device)
+            k = self.num_channels  # ids without a channel (>= num_classes) can never be decoded
+            kept = sorted({i for i in candidates if 0 <= i < k}) or [0]
+            ids = torch.tensor(kept, dtype=torch.long, device=semantic.device)
             return ids[flat[:, ids].argmax(dim=1)].reshape(semantic.shape[:-1])
         ids_list = sorted(set(self.table.ids if candidates is None else candidates))
         ids = torch.tensor(ids_list, dtype=torch.long, device=semantic.device)
         palette = self.class_colors(ids_list, semantic.device)
         out = torch.empty(flat.shape[0], dtype=torch.long, device=semantic.device)
-        step = 1 << 16  # bound the [pixels, classes] distance matrix
+        step = max(1, _DECODE_ELEMENTS // len(ids_list))  # the [pixels, classes] distances stay <= 64 MiB
         for begin in range(0, flat.shape[0], step):
             dist = torch.cdist(flat[begin : begin + step], palette)
             out[begin : begin + step] = ids[dist.argmin(dim=1)]

@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 
 from sgs_slam_core.errors import DatasetError
+from sgs_slam_core.fileio import write_text
 from sgs_slam_core.runner.compare import DEFAULT_METRICS, RunSummary, format_comparison, load_run, metric_keys
 
 __all__ = ["add_parser", "run"]
@@ -59,5 +60,5 @@ def run(args: argparse.Namespace) -> int:
     table = format_comparison(runs, keys, args.fmt, info=not args.no_info)
     print(table)
     if args.out is not None:
-        args.out.write_text(table + "\n")
+        write_text(args.out, table + "\n")
     return 0

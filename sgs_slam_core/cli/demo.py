@@ -7,6 +7,7 @@ import os
 import sys
 from pathlib import Path
 
+from sgs_slam_core.cli.args import IntRange
 from sgs_slam_core.cli.progress import ProgressBar
 from sgs_slam_core.config import load_config
 from sgs_slam_core.datasets import DatasetOptions, open_dataset
@@ -42,7 +43,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="run folder (default: demo_out, replaced)")
     p.add_argument("--data", type=Path, default=default_room_dir(), help="where the room sequence is kept")
-    p.add_argument("--max-frames", type=int, help="stop after N frames")
+    p.add_argument("--max-frames", type=IntRange(1), help="stop after N frames (>= 1)")
     p.set_defaults(func=run)
 
 

@@ -6,11 +6,17 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
+from sgs_slam_core.cli.args import FloatRange, IntRange
 from sgs_slam_core.editing import EditError, EditKind, EditRequest, Selection, apply_edit
 from sgs_slam_core.errors import MapFileError
-from sgs_slam_core.mapio import read_any_map, write_any_map
+from sgs_slam_core.mapio import MAP_SUFFIXES, read_any_map, write_any_map
 
 __all__ = ["add_parser", "parse_label", "run"]
+
+_FINITE = FloatRange()
+_UNIT = FloatRange(0.0, 1.0)
+_INSTANCE = IntRange(0)
+_LINK = FloatRange(0.0, 100.0, lo_open=True)
 
 
 def parse_label(text: str) -> int | str:
@@ -33,16 +39,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     op.add_argument("--keep-label", nargs="+", type=parse_label, metavar="L", help="keep only these classes")
     op.add_argument("--move-label", nargs="+", type=parse_label, metavar="L", help="move/rotate these classes")
     op.add_argument("--recolor-label", nargs="+", type=parse_label, metavar="L", help="paint these classes")
-    p.add_argument("--translate", nargs=3, type=float, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
+    p.add_argument("--translate", nargs=3, type=_FINITE, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
                    help="translation in metres, map frame (with --move-label)")  # fmt: skip
-    p.add_argument("--rotate-deg", nargs=3, type=float, default=(0.0, 0.0, 0.0), metavar=("RX", "RY", "RZ"),
+    p.add_argument("--rotate-deg", nargs=3, type=_FINITE, default=(0.0, 0.0, 0.0), metavar=("RX", "RY", "RZ"),
                    help="rotation about the map's x, y, z axes in degrees, applied before the translation")  # fmt: skip
-    p.add_argument("--pivot", nargs=3, type=float, metavar=("X", "Y", "Z"),
+    p.add_argument("--pivot", nargs=3, type=_FINITE, metavar=("X", "Y", "Z"),
                    help="rotation centre in metres (default: the selection's centroid)")  # fmt: skip
-    p.add_argument("--rgb", nargs=3, type=float, metavar=("R", "G", "B"), help="colour in [0, 1] (--recolor-label)")
-    p.add_argument("--instance", type=int, help="only the K-th connected object of the classes (0 = largest)")
-    p.add_argument("--link", type=float, default=0.05, help="distance (m) joining Gaussians into one instance")
-    p.add_argument("--box", nargs=6, type=float, metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+    p.add_argument("--rgb", nargs=3, type=_UNIT, metavar=("R", "G", "B"), help="colour in [0, 1] (--recolor-label)")
+    p.add_argument("--instance", type=_INSTANCE, help="only the K-th connected object of the classes (0 = largest)")
+    p.add_argument("--link", type=_LINK, default=0.05,
+                   help=f"distance in m joining Gaussians into one instance ({_LINK.bounds}; 0.05)")  # fmt: skip
+    p.add_argument("--box", nargs=6, type=_FINITE, metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                    help="only Gaussians inside this axis-aligned box (m)")  # fmt: skip
     p.add_argument("--no-lock", action="store_true", help="do not lock the edited classes in the output map")
     p.add_argument("--out", type=Path, required=True, help="output map (.sgsmap or .ply)")
@@ -68,6 +75,8 @@ def request_from_args(args: argparse.Namespace) -> EditRequest:
 
 def run(args: argparse.Namespace) -> int:
     """Load, edit, write, print what changed."""
+    if args.out.suffix.lower() not in MAP_SUFFIXES:
+        raise MapFileError(f"--out {args.out}: map files end in {' or '.join(MAP_SUFFIXES)}")
     if args.out.exists() and not args.overwrite:
         raise MapFileError(f"{args.out} exists (use --overwrite to replace it)")
     if args.out.resolve() == args.map.resolve():

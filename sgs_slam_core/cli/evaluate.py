@@ -3,18 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
-
-import yaml
+from typing import Any
 
 from sgs_slam_core.cli.run import open_input
 from sgs_slam_core.config import build
 from sgs_slam_core.config.schema import SlamConfig
-from sgs_slam_core.datasets import DatasetOptions
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.mapio import load_map
 from sgs_slam_core.runner import EvalOptions, evaluate, format_table, read_metrics
 from sgs_slam_core.runner.report import write_metrics
+from sgs_slam_core.runner.run_info import read_run_info
 from sgs_slam_core.semantics import SemanticCodec
 
 __all__ = ["add_parser", "run"]
@@ -32,24 +32,40 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _previous_metrics(path: Path) -> dict[str, Any]:
+    """The run's own numbers (speed, memory) from an earlier metrics.json; empty if absent or unreadable."""
+    try:
+        previous = read_metrics(path) if path.is_file() else {}
+    except DatasetError as err:
+        print(f"warning: {err}; it is replaced", file=sys.stderr)
+        return {}
+    return previous if isinstance(previous, dict) else {}
+
+
 def run(args: argparse.Namespace) -> int:
     """Reload dataset, map and trajectory; evaluate; print the table."""
-    run_yaml = args.run_dir / "run.yaml"
-    if not run_yaml.is_file():
-        raise DatasetError(f"{args.run_dir} is not a run folder (no run.yaml)")
-    info = yaml.safe_load(run_yaml.read_text()) or {}
-    source = args.input or Path(info.get("input", ""))
-    options = DatasetOptions(**info.get("options", {}))
-    dataset = open_input(source, info.get("format", "auto"), options, info.get("topics") or None)
+    info = read_run_info(args.run_dir)
+    if not (args.run_dir / "map.sgsmap").is_file():
+        how = f" (run.yaml: {info.status}{': ' + info.note if info.note else ''})" if info.status else ""
+        raise DatasetError(f"{args.run_dir} has no map.sgsmap to evaluate{how}")
+    source = args.input or info.input
+    if source is None:
+        raise DatasetError(f"{args.run_dir / 'run.yaml'} does not name the input; give it with --input")
+    dataset = open_input(source, info.format, info.options, info.topics or None)
     saved = load_map(args.run_dir / "map.sgsmap")
     config = build(SlamConfig, saved.config)
     frame_ids = [i for i, _, _ in saved.trajectory]  # dataset frame indices
     poses = [p for _, _, p in saved.trajectory]
+    if frame_ids and not 0 <= min(frame_ids) <= max(frame_ids) < len(dataset):
+        raise DatasetError(
+            f"the map's trajectory refers to frame {max(frame_ids)}, but {source} has {len(dataset)} frames "
+            "with these options (another input?)"
+        )
     codec = SemanticCodec(config.semantic, saved.label_table)
     candidates = saved.seen_labels or saved.label_table.ids
     metrics = evaluate(dataset, frame_ids, poses, saved.gaussians, codec, candidates, config.render,
                        EvalOptions(config.eval_every, 0, None))  # fmt: skip
-    previous = read_metrics(args.run_dir / "metrics.json") if (args.run_dir / "metrics.json").is_file() else {}
+    previous = _previous_metrics(args.run_dir / "metrics.json")
     metrics.update({k: previous[k] for k in _KEEP if k in previous})
     metrics["num_gaussians"] = len(saved.gaussians)
     print(format_table(metrics))

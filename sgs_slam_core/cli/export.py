@@ -5,10 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from sgs_slam_core.cli.args import FloatRange
 from sgs_slam_core.errors import MapFileError
 from sgs_slam_core.mapio import read_any_map, write_map_point_cloud, write_splat_ply
 
 __all__ = ["add_parser", "run"]
+
+_OPACITY = FloatRange(0.0, 1.0)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -21,7 +24,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True, help="output .ply")
     p.add_argument("--points", action="store_true", help="a plain point cloud of the Gaussian centres")
     p.add_argument("--semantic", action="store_true", help="point colours from the class palette (with --points)")
-    p.add_argument("--min-opacity", type=float, default=0.5, help="leave out fainter Gaussians (with --points)")
+    p.add_argument("--min-opacity", type=_OPACITY, default=0.5,
+                   help=f"leave out fainter Gaussians (with --points; {_OPACITY.bounds}, 0.5)")  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.set_defaults(func=run)
 

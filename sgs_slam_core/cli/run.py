@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from sgs_slam_core.cli.args import FloatRange, IntRange
 from sgs_slam_core.cli.viewer_args import add_viewer_arguments, start_viewer, viewer_options_from_args
 from sgs_slam_core.config import list_presets, load_config
 from sgs_slam_core.datasets import FORMATS, Dataset, DatasetOptions, detect_format, open_dataset
@@ -60,10 +61,10 @@ def camera_rate(text: str) -> float | str:
 def add_dataset_arguments(p: argparse.ArgumentParser) -> None:
     """Format and frame-selection options shared by run and eval."""
     p.add_argument("--format", default="auto", choices=["auto", *FORMATS], help="dataset format (default: detect)")
-    p.add_argument("--max-frames", type=int, help="process at most N frames")
-    p.add_argument("--stride", type=int, default=1, help="use every K-th frame")
-    p.add_argument("--start", type=int, default=0, help="first frame")
-    p.add_argument("--downscale", type=float, default=1.0, help="divide the image size by F (e.g. 2)")
+    p.add_argument("--max-frames", type=IntRange(1), help="process at most N frames (>= 1)")
+    p.add_argument("--stride", type=IntRange(1), default=1, help="use every K-th frame (>= 1)")
+    p.add_argument("--start", type=IntRange(0), default=0, help="first frame (>= 0)")
+    p.add_argument("--downscale", type=FloatRange(1.0, 64.0), default=1.0, help="divide the image size by F (1..64)")
     p.add_argument("--topic", dest="topics", action="append", default=[], metavar="KEY=NAME",
                    help=f"bag topic of a stream, KEY one of {', '.join(TOPIC_KEYS)} "
                    "(bags recorded elsewhere; repeatable)")  # fmt: skip

@@ -17,6 +17,7 @@ from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_
 import yaml
 
 from sgs_slam_core.errors import ConfigError
+from sgs_slam_core.fileio import read_text, write_text
 
 __all__ = [
     "build",
@@ -161,9 +162,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     """A YAML mapping from a file (an empty file is an empty mapping)."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except OSError as err:
-        raise ConfigError(f"cannot read config file {path}: {err.strerror or err}") from err
+        data = yaml.safe_load(read_text(path, "config file", ConfigError)) or {}
     except yaml.YAMLError as err:
         raise ConfigError(f"config file {path} is not valid YAML: {err}") from err
     if not isinstance(data, dict):
@@ -207,5 +206,5 @@ def load_layers(
 
 
 def dump_yaml(obj: Any, path: str | Path) -> None:
-    """Write a config (dataclass or mapping) as YAML."""
-    Path(path).write_text(yaml.safe_dump(config_to_dict(obj), sort_keys=False))
+    """Write a config (dataclass or mapping) as YAML, atomically."""
+    write_text(path, yaml.safe_dump(config_to_dict(obj), sort_keys=False))

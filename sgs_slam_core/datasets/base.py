@@ -16,20 +16,27 @@ import cv2
 import numpy as np
 
 from sgs_slam_core.errors import DatasetError
+from sgs_slam_core.fileio import read_image
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelTable
 
 __all__ = [
+    "MIN_IMAGE_SIDE",
     "Dataset",
     "DatasetOptions",
     "FrameRecord",
     "RecordDataset",
+    "check_frame_size",
     "read_color",
     "read_depth_png",
     "read_label_png",
     "resize_frame",
+    "rigid_or_none",
 ]
+
+
+MIN_IMAGE_SIDE = 16  # px: below this the SSIM window (11 px) and tracking have too little to work with
 
 
 @dataclass(frozen=True)
@@ -112,16 +119,12 @@ class FrameRecord:
 
 def read_color(path: Path) -> np.ndarray:  # [H, W, 3] uint8 RGB
     """An 8-bit colour image (any format OpenCV reads) as RGB."""
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise DatasetError(f"cannot read colour image {path} (missing or corrupt)")
+    img = read_image(path, cv2.IMREAD_COLOR, "colour")
     return np.ascontiguousarray(img[..., ::-1])
 
 
 def _read_unchanged(path: Path, what: str) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise DatasetError(f"cannot read {what} image {path} (missing or corrupt)")
+    img = read_image(path, cv2.IMREAD_UNCHANGED, what)
     if img.ndim != 2:
         raise DatasetError(f"{what} image {path} must have one channel, got shape {img.shape}")
     return img
@@ -141,6 +144,33 @@ def read_label_png(path: Path) -> np.ndarray:  # [H, W] int32
     if raw.dtype not in (np.uint8, np.uint16):
         raise DatasetError(f"label image {path} must be 8- or 16-bit, got {raw.dtype}")
     return raw.astype(np.int32)
+
+
+def check_frame_size(k: Intrinsics, options: DatasetOptions) -> None:
+    """Refuse a ``downscale`` that leaves frames smaller than :data:`MIN_IMAGE_SIDE` (native sizes are the data's)."""
+    if options.downscale != 1.0 and min(k.width, k.height) < MIN_IMAGE_SIDE:
+        raise DatasetError(
+            f"downscale {options.downscale:g} leaves {k.width}x{k.height} px frames; "
+            f"SLAM and its metrics need at least {MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE}"
+        )
+
+
+def rigid_or_none(matrix: np.ndarray, where: str, tolerance: float = 1e-3) -> np.ndarray | None:  # [4, 4]
+    """A ground-truth camera-to-world matrix, None when it is not finite (a frame without ground truth).
+
+    A finite matrix that is not a rigid transform (rotation orthonormal with determinant +1 within
+    ``tolerance``, last row 0 0 0 1) raises :class:`DatasetError` naming ``where``.
+    """
+    if matrix.shape != (4, 4):
+        raise DatasetError(f"{where}: expected a 4x4 matrix, got shape {matrix.shape}")
+    if not np.isfinite(matrix).all():
+        return None
+    r = matrix[:3, :3]
+    if not np.allclose(matrix[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
+        raise DatasetError(f"{where}: not a rigid transform (the last row must be 0 0 0 1, got {matrix[3].tolist()})")
+    if np.abs(r @ r.T - np.eye(3)).max() > tolerance or np.linalg.det(r) < 0:
+        raise DatasetError(f"{where}: not a rigid transform (the rotation part is not orthonormal with det +1)")
+    return matrix
 
 
 def resize_frame(
@@ -178,6 +208,7 @@ class RecordDataset:
         self._depth_scale = depth_scale
         self._table = label_table
         self._intrinsics = native if options.downscale == 1.0 else native.scaled(1.0 / options.downscale)
+        check_frame_size(self._intrinsics, options)
 
     @property
     def intrinsics(self) -> Intrinsics:

@@ -8,11 +8,14 @@ from pathlib import Path
 import yaml
 
 from sgs_slam_core.errors import DatasetError, ShapeError
+from sgs_slam_core.fileio import read_text, write_text
 from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.validate import as_float, as_int
 
 __all__ = ["CameraFile", "read_camera_file", "write_camera_file"]
 
 _KEYS = ("width", "height", "fx", "fy", "cx", "cy")
+MAX_SIDE = 16384  # px: larger than any RGB-D camera
 
 
 @dataclass(frozen=True)
@@ -26,8 +29,8 @@ class CameraFile:
 def read_camera_file(path: Path) -> CameraFile:
     """Parse and validate a camera file."""
     try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as err:
+        data = yaml.safe_load(read_text(path, "camera file"))
+    except yaml.YAMLError as err:
         raise DatasetError(f"cannot read camera file {path}: {err}") from err
     if not isinstance(data, dict):
         raise DatasetError(f"camera file {path} must be a mapping with {', '.join(_KEYS)}")
@@ -35,16 +38,15 @@ def read_camera_file(path: Path) -> CameraFile:
     unknown = sorted(set(data) - {*_KEYS, "depth_scale"})
     if missing or unknown:
         raise DatasetError(f"camera file {path}: missing {missing}, unknown {unknown}")
+    side = {k: as_int(data[k], f"camera file {path}: {k}", DatasetError, 1, MAX_SIDE) for k in ("width", "height")}
+    num = {k: as_float(data[k], f"camera file {path}: {k}", DatasetError) for k in ("fx", "fy", "cx", "cy")}
+    scale = data.get("depth_scale")
+    if scale is not None:
+        scale = as_float(scale, f"camera file {path}: depth_scale", DatasetError, 0.0, lo_open=True)
     try:
-        k = Intrinsics(
-            float(data["fx"]), float(data["fy"]), float(data["cx"]), float(data["cy"]),
-            int(data["width"]), int(data["height"]),
-        )  # fmt: skip
-        scale = float(data["depth_scale"]) if data.get("depth_scale") is not None else None
-    except (TypeError, ValueError, ShapeError) as err:
+        k = Intrinsics(num["fx"], num["fy"], num["cx"], num["cy"], side["width"], side["height"])
+    except ShapeError as err:
         raise DatasetError(f"camera file {path}: {err}") from err
-    if scale is not None and not scale > 0:
-        raise DatasetError(f"camera file {path}: depth_scale must be > 0, got {scale}")
     return CameraFile(k, scale)
 
 
@@ -60,4 +62,4 @@ def write_camera_file(path: Path, intrinsics: Intrinsics, depth_scale: float | N
     }
     if depth_scale is not None:
         data["depth_scale"] = depth_scale
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    write_text(path, yaml.safe_dump(data, sort_keys=False))

@@ -18,9 +18,17 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from sgs_slam_core.datasets.base import DatasetOptions, FrameRecord, RecordDataset, read_color, read_label_png
+from sgs_slam_core.datasets.base import (
+    DatasetOptions,
+    FrameRecord,
+    RecordDataset,
+    read_color,
+    read_label_png,
+    rigid_or_none,
+)
 from sgs_slam_core.datasets.camera_file import read_camera_file
 from sgs_slam_core.errors import DatasetError
+from sgs_slam_core.fileio import read_text
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelClass, LabelError, LabelTable
 
@@ -44,11 +52,11 @@ def _numbered(folder: Path, prefix: str, suffixes: tuple[str, ...]) -> list[Path
 
 
 def read_trajectory_matrices(path: Path) -> list[np.ndarray]:
-    """4x4 matrices from a file with 16 numbers per line (row-major)."""
+    """4x4 matrices from a file with 16 numbers per line (row-major); NaN/inf rows stay (no ground truth)."""
     if not path.is_file():
         raise DatasetError(f"missing trajectory file {path}")
     poses = []
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+    for lineno, line in enumerate(read_text(path, "trajectory file").splitlines(), 1):
         if not line.strip():
             continue
         try:
@@ -110,13 +118,14 @@ class ReplicaDataset(RecordDataset):
         poses = read_trajectory_matrices(root / "traj.txt")
         if len(poses) != len(colors):
             raise DatasetError(f"{root / 'traj.txt'} has {len(poses)} poses for {len(colors)} frames")
+        traj = root / "traj.txt"
         records = [
             FrameRecord(
                 color=c,
                 depth=d,
                 stamp_ns=round(i * 1e9 / FRAME_RATE_HZ),
                 labels=labels[i] if labels else None,
-                gt_c2w=p if np.isfinite(p).all() else None,
+                gt_c2w=rigid_or_none(p, f"{traj}: pose {i + 1}"),
             )
             for i, (c, d, p) in enumerate(zip(colors, depths, poses, strict=True))
         ]
@@ -128,8 +137,8 @@ class ReplicaDataset(RecordDataset):
     def _label_table(root: Path, labels: list[Path], sem_colors: list[Path]) -> LabelTable:
         if (root / "labels.yaml").is_file():
             try:
-                return LabelTable.from_dict(yaml.safe_load((root / "labels.yaml").read_text()))
-            except (yaml.YAMLError, LabelError, AttributeError) as err:
+                return LabelTable.from_dict(yaml.safe_load(read_text(root / "labels.yaml", "label table")))
+            except (yaml.YAMLError, LabelError) as err:
                 raise DatasetError(f"bad label table {root / 'labels.yaml'}: {err}") from err
         if labels and len(sem_colors) == len(labels):
             return _table_from_color_images(labels, sem_colors)

@@ -10,6 +10,7 @@ unknown ids become 0. Frames whose pose is not finite are skipped and counted in
 from __future__ import annotations
 
 import csv
+import io
 import logging
 from pathlib import Path
 
@@ -22,10 +23,13 @@ from sgs_slam_core.datasets.base import (
     read_color,
     read_depth_png,
     read_label_png,
+    rigid_or_none,
 )
 from sgs_slam_core.errors import DatasetError
+from sgs_slam_core.fileio import read_text
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelTable
+from sgs_slam_core.validate import as_int
 
 __all__ = ["ScanNetDataset", "read_label_mapping"]
 
@@ -34,37 +38,42 @@ log = logging.getLogger(__name__)
 SCANNET_DEPTH_SCALE = 1000.0
 FRAME_RATE_HZ = 30.0
 TSV_NAME = "scannetv2-labels.combined.tsv"
+MAX_RAW_ID = 65535  # raw label images are 16-bit
 
 
 def read_label_mapping(path: Path) -> np.ndarray:  # [max_raw_id + 1] int32 raw id -> NYU40 id
-    """Lookup table raw ScanNet id -> NYU40 id from the benchmark's TSV."""
+    """Lookup table raw ScanNet id -> NYU40 id from the benchmark's TSV.
+
+    Raw ids index 16-bit label images, so an id outside 0..65535 is an error (it would also size
+    the table); NYU40 ids outside 0..40 map to 0 (unlabelled).
+    """
+    text = read_text(path, "label mapping")
     try:
-        with path.open(newline="") as f:
-            rows = list(csv.DictReader(f, delimiter="\t"))
-    except OSError as err:
-        raise DatasetError(f"cannot read label mapping {path}: {err.strerror or err}") from err
+        rows = list(csv.DictReader(io.StringIO(text, newline=""), delimiter="\t"))
+    except csv.Error as err:
+        raise DatasetError(f"label mapping {path} is not a TSV file: {err}") from err
     if not rows or "id" not in rows[0] or "nyu40id" not in rows[0]:
         raise DatasetError(f"label mapping {path} needs 'id' and 'nyu40id' columns")
     pairs = []
     for lineno, row in enumerate(rows, 2):
-        try:
-            pairs.append((int(row["id"]), int(row["nyu40id"] or 0)))
-        except ValueError as err:
-            raise DatasetError(f"{path}:{lineno}: bad id ({err})") from err
+        raw = as_int(row["id"], f"{path}:{lineno}: id", DatasetError, 0, MAX_RAW_ID)
+        nyu = as_int(row["nyu40id"] or 0, f"{path}:{lineno}: nyu40id", DatasetError)
+        pairs.append((raw, nyu))
     lut = np.zeros(max(i for i, _ in pairs) + 1, dtype=np.int32)
     for raw, nyu in pairs:
         lut[raw] = nyu if 0 <= nyu <= 40 else 0
     return lut
 
 
-def _read_matrix(path: Path) -> np.ndarray:
+def _read_matrix(path: Path) -> np.ndarray:  # [4, 4]
+    text = read_text(path, "matrix file", max_bytes=1 << 16)
     try:
-        m = np.loadtxt(path, dtype=np.float64)
-    except (OSError, ValueError) as err:
-        raise DatasetError(f"cannot read matrix file {path}: {err}") from err
-    if m.shape != (4, 4):
-        raise DatasetError(f"{path} must hold a 4x4 matrix, got shape {m.shape}")
-    return m
+        rows = [[float(v) for v in line.split()] for line in text.splitlines() if line.strip()]
+    except ValueError as err:
+        raise DatasetError(f"matrix file {path} holds something that is not a number ({err})") from err
+    if len(rows) != 4 or any(len(r) != 4 for r in rows):
+        raise DatasetError(f"{path} must hold a 4x4 matrix, got rows of {[len(r) for r in rows]} numbers")
+    return np.array(rows, dtype=np.float64)
 
 
 def _find_tsv(root: Path, given: Path | None) -> Path | None:
@@ -104,8 +113,9 @@ class ScanNetDataset(RecordDataset):
             raise DatasetError(f"{root}: label-filt/ present but no {TSV_NAME} beside the scene; pass its path")
         records, self.skipped = [], 0
         for i, stem in enumerate(stems):
-            pose = _read_matrix(root / "pose" / f"{stem}.txt")
-            if not np.isfinite(pose).all():
+            pose_file = root / "pose" / f"{stem}.txt"
+            pose = rigid_or_none(_read_matrix(pose_file), str(pose_file))
+            if pose is None:  # ScanNet marks frames without a pose with -inf
                 self.skipped += 1
                 continue
             records.append(

@@ -9,6 +9,7 @@ outside the ground-truth span, or inside a gap of the motion capture, get none.
 from __future__ import annotations
 
 import logging
+import math
 import re
 from pathlib import Path
 
@@ -17,10 +18,11 @@ import numpy as np
 from sgs_slam_core.datasets.base import DatasetOptions, FrameRecord, RecordDataset
 from sgs_slam_core.datasets.camera_file import read_camera_file
 from sgs_slam_core.errors import DatasetError
+from sgs_slam_core.fileio import read_text
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelTable
 
-__all__ = ["TUM_INTRINSICS", "TumDataset", "associate", "interpolate_poses", "read_stamped_list"]
+__all__ = ["TUM_INTRINSICS", "TumDataset", "associate", "interpolate_poses", "read_ground_truth", "read_stamped_list"]
 
 log = logging.getLogger(__name__)
 
@@ -35,24 +37,60 @@ MAX_ASSOCIATION_S = 0.02
 MAX_GT_GAP_S = 0.1
 
 
-def read_stamped_list(path: Path, columns: int) -> tuple[np.ndarray, list[list[str]]]:
-    """Rows of a TUM text file: ``(stamps [N] float64 s, the other columns as strings)``."""
+def _rows(path: Path, columns: int) -> list[tuple[int, float, list[str]]]:
+    """``(line number, stamp s, other columns)`` of every data line of a TUM text file."""
     if not path.is_file():
         raise DatasetError(f"missing TUM file {path}")
-    stamps, rest = [], []
-    for lineno, raw in enumerate(path.read_text().splitlines(), 1):
+    rows = []
+    for lineno, raw in enumerate(read_text(path, "TUM list").splitlines(), 1):
         text = raw.strip()
         if not text or text.startswith("#"):
             continue
         parts = text.replace(",", " ").split()
         if len(parts) != columns + 1:
             raise DatasetError(f"{path}:{lineno}: expected {columns + 1} columns, got {len(parts)}")
-        try:
-            stamps.append(float(parts[0]))
-        except ValueError as err:
-            raise DatasetError(f"{path}:{lineno}: bad time stamp {parts[0]!r}") from err
-        rest.append(parts[1:])
-    return np.array(stamps, dtype=np.float64), rest
+        rows.append((lineno, _number(parts[0], path, lineno, "time stamp"), parts[1:]))
+    return rows
+
+
+def _number(text: str, path: Path, lineno: int, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise DatasetError(f"{path}:{lineno}: {what} {text!r} is not a finite number")
+    return value
+
+
+def read_stamped_list(path: Path, columns: int) -> tuple[np.ndarray, list[list[str]]]:
+    """Rows of a TUM text file: ``(stamps [N] float64 s, the other columns as strings)``.
+
+    The file is UTF-8 or ASCII; other bytes (a Latin-1 file name) are kept as surrogates, which name
+    the same file on disk. A binary file, a wrong column count or a stamp that is not a finite
+    number raises :class:`DatasetError` naming the file and line.
+    """
+    rows = _rows(path, columns)
+    return np.array([t for _, t, _ in rows], dtype=np.float64), [rest for _, _, rest in rows]
+
+
+def read_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """``groundtruth.txt`` as ``(stamps [M] s, poses [M, 7] tx ty tz qx qy qz qw)``, sorted by stamp.
+
+    A value that is not a finite number, or a zero quaternion, raises :class:`DatasetError` naming
+    the line and the field.
+    """
+    fields = ("tx", "ty", "tz", "qx", "qy", "qz", "qw")
+    stamps, values = [], []
+    for lineno, stamp, rest in _rows(path, 7):
+        row = [_number(v, path, lineno, name) for v, name in zip(rest, fields, strict=True)]
+        if math.hypot(*row[3:]) < 1e-6:
+            raise DatasetError(f"{path}:{lineno}: quaternion (qx qy qz qw) is zero, not a rotation")
+        stamps.append(stamp)
+        values.append(row)
+    t, poses = np.array(stamps, dtype=np.float64), np.array(values, dtype=np.float64).reshape(-1, 7)
+    order = np.argsort(t, kind="stable")
+    return t[order], poses[order]
 
 
 def associate(a: np.ndarray, b: np.ndarray, max_dt: float = MAX_ASSOCIATION_S) -> list[tuple[int, int]]:
@@ -157,10 +195,8 @@ class TumDataset(RecordDataset):
         poses: list[np.ndarray | None] = [None] * len(pairs)
         gt_file = root / "groundtruth.txt"
         if gt_file.is_file():
-            gt_t, gt_rows = read_stamped_list(gt_file, 7)
-            order = np.argsort(gt_t)
-            gt = np.array(gt_rows, dtype=np.float64)[order]
-            poses = interpolate_poses(gt_t[order], gt, rgb_t[[i for i, _ in pairs]])
+            gt_t, gt = read_ground_truth(gt_file)
+            poses = interpolate_poses(gt_t, gt, rgb_t[[i for i, _ in pairs]])
         records = [
             FrameRecord(
                 color=root / rgb_f[i][0],

@@ -54,8 +54,10 @@ class PipelineStats:
     mapped: int = 0
     dropped_frames: int = 0  # replaced before tracking (live mode) or arriving while paused
     dropped_jobs: int = 0  # mapping jobs replaced before mapping (live mode)
-    tracking_failures: int = 0
-    errors: int = 0
+    tracking_failures: int = 0  # tracked, but flagged by the failure guard (not mapped)
+    tracking_errors: int = 0  # rejected by tracking (bad frame) or failed: no pose
+    mapping_errors: int = 0
+    errors: int = 0  # tracking_errors + mapping_errors + listeners that raised
     last_error: str = ""
     latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=50))  # arrival -> pose (s)
 
@@ -150,6 +152,7 @@ class SlamPipeline:
             try:
                 outcome = self.slam.track(frame)
             except Exception as err:
+                self.stats.tracking_errors += 1
                 self._error("tracking", err)
                 outcome = None
             with self._cv:
@@ -181,6 +184,7 @@ class SlamPipeline:
                     tracked = job.tracked or self.slam.register(job.frame, job.c2w)
                     result = self.slam.map(job.frame, tracked)
             except Exception as err:
+                self.stats.mapping_errors += 1
                 self._error("mapping", err)
             with self._cv:
                 self._busy["map"] = False
@@ -257,13 +261,16 @@ class SlamPipeline:
         """Context manager: workers idle and blocked while the body runs (save/load/edit the map)."""
         return _Exclusive(self, timeout)
 
-    def shutdown(self) -> None:
-        """Stop the worker threads."""
+    def shutdown(self, timeout: float = 120.0) -> None:
+        """Stop the worker threads, waiting up to ``timeout`` s for the step each is in.
+
+        A worker left running while the interpreter exits can abort the process.
+        """
         with self._cv:
             self._running = False
             self._cv.notify_all()
         for t in self._threads:
-            t.join(timeout=5.0)
+            t.join(timeout=timeout)
 
 
 class _Exclusive:

@@ -8,6 +8,7 @@ depth, int32 labels: about 2.8 MB per 640x480 keyframe) so that mapping resumes 
 
 from __future__ import annotations
 
+import io
 import pickle
 import zipfile
 from dataclasses import dataclass, field
@@ -18,11 +19,12 @@ import numpy as np
 import torch
 
 from sgs_slam_core.errors import MapFileError, ShapeError
+from sgs_slam_core.fileio import atomic_write
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelError, LabelTable
-from sgs_slam_core.mapio.atomic import atomic_write
 from sgs_slam_core.slam.frame_data import CompactFrame
+from sgs_slam_core.validate import as_float, as_int
 
 __all__ = ["FORMAT", "VERSION", "MapFile", "load_map", "save_map"]
 
@@ -101,7 +103,9 @@ def save_map(path: str | Path, m: MapFile) -> None:
         "keyframe_images": [_keyframe_dict(kf) for kf in m.keyframe_images],
         "frames_processed": m.frames_processed,
     }
-    atomic_write(path, lambda f: torch.save(payload, f))
+    buffer = io.BytesIO()  # torch.save turns a failing file write (disk full) into a RuntimeError: write it ourselves
+    torch.save(payload, buffer)
+    atomic_write(path, lambda f: f.write(buffer.getbuffer()))
 
 
 def load_map(path: str | Path, device: torch.device | str = "cpu") -> MapFile:
@@ -130,12 +134,17 @@ def load_map(path: str | Path, device: torch.device | str = "cpu") -> MapFile:
         locked = [int(i) for i in data.get("locked_labels", [])]
         images = [_keyframe_from_dict(d, k) for d in data.get("keyframe_images", [])]
         processed = data.get("frames_processed")
-        processed = None if processed is None else int(processed)
-    except (ShapeError, LabelError, TypeError, ValueError, AttributeError, KeyError) as err:
+        processed = None if processed is None else as_int(processed, "frames_processed", MapFileError, 0)
+        radius = data.get("scene_radius")
+        radius = None if radius is None else as_float(radius, "scene_radius", MapFileError, 0.0, lo_open=True)
+    except (ShapeError, LabelError, TypeError, ValueError, AttributeError, KeyError, IndexError) as err:
+        raise MapFileError(f"{path}: {type(err).__name__}: {err}") from err
+    except MapFileError as err:
         raise MapFileError(f"{path}: {err}") from err
+    if not isinstance(data["config"], dict):
+        raise MapFileError(f"{path}: config must be a mapping, got {type(data['config']).__name__}")
     for _, pose in [*keyframes, *((i, p) for i, _, p in trajectory)]:
         if pose.shape != (4, 4):
             raise MapFileError(f"{path}: poses must be 4x4, found {pose.shape}")
-    radius = data.get("scene_radius")
-    return MapFile(gaussians, table, dict(data["config"]), k, keyframes, trajectory, seen,
-                   float(radius) if radius is not None else None, locked, images, processed)  # fmt: skip
+    return MapFile(gaussians, table, dict(data["config"]), k, keyframes, trajectory, seen, radius, locked, images,
+                   processed)  # fmt: skip

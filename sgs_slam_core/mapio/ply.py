@@ -10,15 +10,17 @@ exactly. PLYs from other 3DGS tools import as anisotropic maps without semantics
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from sgs_slam_core.errors import MapFileError
+from sgs_slam_core.fileio import atomic_write, read_bytes
 from sgs_slam_core.gaussians import GaussianMap
-from sgs_slam_core.labels import LabelTable
-from sgs_slam_core.mapio.atomic import atomic_write
+from sgs_slam_core.labels import MAX_CLASS_ID, LabelError, LabelTable
+from sgs_slam_core.validate import as_int
 
 __all__ = ["SH_C0", "read_splat_ply", "write_map_point_cloud", "write_point_cloud_ply", "write_splat_ply"]
 
@@ -73,11 +75,34 @@ def write_splat_ply(path: str | Path, gaussians: GaussianMap, table: LabelTable 
     _write(Path(path), data, comments)
 
 
+def _header(path: Path, lines: list[str]) -> tuple[int, list[tuple[str, str]]]:
+    """``(vertex count, [(property, numpy type)])`` of a PLY header; the vertex element must come first."""
+    count, props, element = -1, [], None
+    for lineno, ln in enumerate(lines, 1):
+        parts = ln.split()
+        if parts[:1] == ["element"]:
+            if len(parts) != 3:
+                raise MapFileError(f"{path}: header line {lineno} {ln!r}: expected 'element NAME COUNT'")
+            if element is None and parts[1] != "vertex":
+                raise MapFileError(f"{path}: the first element is {parts[1]!r}; a splat PLY starts with 'vertex'")
+            element = parts[1]
+            if element == "vertex":
+                count = as_int(parts[2], f"{path}: header line {lineno}: vertex count", MapFileError, 0)
+        elif parts[:1] == ["property"] and element == "vertex":
+            if len(parts) != 3 or parts[1] == "list" or parts[1] not in _PLY_TYPES:
+                raise MapFileError(f"{path}: header line {lineno}: unsupported property {' '.join(parts[1:])!r}")
+            if any(name == parts[2] for name, _ in props):
+                raise MapFileError(f"{path}: header line {lineno}: property {parts[2]!r} appears twice")
+            props.append((parts[2], _PLY_TYPES[parts[1]]))
+    if count < 0:
+        raise MapFileError(f"{path}: the header has no 'element vertex' line")
+    if not props:
+        raise MapFileError(f"{path}: the vertex element has no properties")
+    return count, props
+
+
 def _read(path: Path) -> tuple[np.ndarray, list[str]]:
-    try:
-        raw = path.read_bytes()
-    except OSError as err:
-        raise MapFileError(f"cannot read {path}: {err.strerror or err}") from err
+    raw = read_bytes(path, "map file", MapFileError)
     end = raw.find(b"end_header\n")
     if not raw.startswith(b"ply") or end < 0:
         raise MapFileError(f"{path} is not a PLY file (no header)")
@@ -85,16 +110,7 @@ def _read(path: Path) -> tuple[np.ndarray, list[str]]:
     if "format binary_little_endian 1.0" not in lines:
         raise MapFileError(f"{path}: only binary little-endian PLY is supported")
     comments = [ln[len("comment ") :] for ln in lines if ln.startswith("comment ")]
-    count, props, in_vertex = 0, [], False
-    for ln in lines:
-        parts = ln.split()
-        if parts[:1] == ["element"]:
-            in_vertex = parts[1] == "vertex"
-            count = int(parts[2]) if in_vertex else count
-        elif parts[:1] == ["property"] and in_vertex:
-            if parts[1] == "list" or parts[1] not in _PLY_TYPES:
-                raise MapFileError(f"{path}: unsupported property {' '.join(parts[1:])!r}")
-            props.append((parts[2], _PLY_TYPES[parts[1]]))
+    count, props = _header(path, lines)
     dtype = np.dtype(props)
     body = raw[end + len(b"end_header\n") :]
     if len(body) < count * dtype.itemsize:
@@ -102,6 +118,30 @@ def _read(path: Path) -> tuple[np.ndarray, list[str]]:
             f"{path} is truncated: {count} vertices need {count * dtype.itemsize} bytes, found {len(body)}"
         )
     return np.frombuffer(body, dtype=dtype, count=count), comments
+
+
+def _label_table(path: Path, meta: dict[str, str]) -> LabelTable | None:
+    if "sgs_slam_labels" not in meta:
+        return None
+    try:
+        return LabelTable.from_dict(json.loads(meta["sgs_slam_labels"]))
+    except (json.JSONDecodeError, LabelError) as err:
+        raise MapFileError(f"{path}: the label table in the header is malformed: {err}") from err
+
+
+def _check_values(path: Path, data: np.ndarray, names: set[str]) -> None:
+    """Finite Gaussian parameters and class ids in range; anything else names the property."""
+    for name in sorted(names):
+        values = data[name]
+        if np.issubdtype(values.dtype, np.floating) and not np.isfinite(values).all():
+            bad = int((~np.isfinite(values)).sum())
+            raise MapFileError(f"{path}: property {name!r} holds {bad} NaN or infinite values")
+    if "label" in names and len(data):
+        labels = data["label"]
+        if np.issubdtype(labels.dtype, np.floating) and not (labels == np.round(labels)).all():
+            raise MapFileError(f"{path}: property 'label' holds non-integer class ids")
+        if labels.min() < 0 or labels.max() > MAX_CLASS_ID:
+            raise MapFileError(f"{path}: property 'label' holds ids outside 0..{MAX_CLASS_ID}")
 
 
 def read_splat_ply(path: str | Path) -> tuple[GaussianMap, LabelTable | None]:
@@ -114,7 +154,9 @@ def read_splat_ply(path: str | Path) -> tuple[GaussianMap, LabelTable | None]:
         raise MapFileError(f"{path}: not a Gaussian-splat PLY, missing {sorted(need - names)}")
     meta = dict(c.split(" ", 1) for c in comments if " " in c)
     isotropic = meta.get("sgs_slam_isotropic") == "1"
-    table = LabelTable.from_dict(json.loads(meta["sgs_slam_labels"])) if "sgs_slam_labels" in meta else None
+    table = _label_table(path, meta)
+    sem_keys = sorted((k for k in names if re.fullmatch(r"sem_\d+", k)), key=lambda k: int(k[4:]))
+    _check_values(path, data, need | {"label"} & names | set(sem_keys))
 
     def col(*keys: str) -> torch.Tensor:
         return torch.from_numpy(np.stack([data[k] for k in keys], axis=1).astype(np.float32))
@@ -126,7 +168,6 @@ def read_splat_ply(path: str | Path) -> tuple[GaussianMap, LabelTable | None]:
         colors = col("f_dc_0", "f_dc_1", "f_dc_2") * SH_C0 + 0.5
     else:
         colors = torch.full((n, 3), 0.5, device="cpu")
-    sem_keys = sorted((k for k in names if k.startswith("sem_")), key=lambda k: int(k[4:]))
     semantics = col(*sem_keys) if sem_keys else torch.zeros(n, 0, device="cpu")
     scales = col("scale_0", "scale_1", "scale_2")
     return GaussianMap(

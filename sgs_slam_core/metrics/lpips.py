@@ -9,6 +9,7 @@ or torch hub's cache). Without both, :func:`load_lpips` returns ``(None, reason)
 from __future__ import annotations
 
 import pickle
+import zipfile
 
 import torch
 from torch import Tensor, nn
@@ -66,6 +67,11 @@ class Lpips(nn.Module):
             lin.weight.data.copy_(linear[f"lin{i}.model.1.weight"])
 
 
+# what torch.load and load_state_dict raise for a file that is not the expected state dict
+_LOAD_ERRORS = (OSError, RuntimeError, KeyError, ValueError, AttributeError, EOFError, pickle.UnpicklingError,
+                zipfile.BadZipFile)  # fmt: skip
+
+
 def load_lpips(device: torch.device | str = "cpu") -> tuple[Lpips | None, str]:
     """The metric with pretrained weights, or ``(None, why not)``."""
     weights = find_lpips_weights()
@@ -74,6 +80,7 @@ def load_lpips(device: torch.device | str = "cpu") -> tuple[Lpips | None, str]:
     try:
         model = Lpips()
         model.load(torch.load(weights.alexnet, map_location="cpu"), torch.load(weights.linear, map_location="cpu"))
-    except (OSError, RuntimeError, KeyError, pickle.UnpicklingError) as err:
-        return None, f"LPIPS weights could not be loaded from {weights.alexnet} and {weights.linear}: {err}"
+    except _LOAD_ERRORS as err:
+        return None, (f"LPIPS weights could not be loaded from {weights.alexnet} and {weights.linear}: "
+                      f"{type(err).__name__}: {err}")  # fmt: skip
     return model.eval().to(device), ""

@@ -28,10 +28,15 @@ def _as_ids(a: object, name: str) -> np.ndarray:
 
 
 class ConfusionMatrix:
-    """Rows: ground truth id; columns: predicted id. Grows to the largest id seen."""
+    """Rows: ground-truth class; columns: predicted class; over the class ids seen so far.
+
+    The table is indexed by the sorted ids that occurred (``classes``), not by the ids themselves,
+    so a label image holding id 65535 costs one row, not a 65536 x 65536 table.
+    """
 
     def __init__(self) -> None:
-        self.matrix = np.zeros((1, 1), dtype=np.int64)
+        self.classes = np.zeros(0, dtype=np.int64)  # [K] sorted ids occurring in ground truth or prediction
+        self.matrix = np.zeros((0, 0), dtype=np.int64)  # [K, K] pixel counts
 
     def update(self, pred: object, gt: object) -> None:
         """Add one frame (``pred`` and ``gt`` are equally shaped id images)."""
@@ -42,12 +47,22 @@ class ConfusionMatrix:
         p, g = p[keep], g[keep]
         if g.size == 0:
             return
-        size = max(self.matrix.shape[0], int(p.max()) + 1, int(g.max()) + 1)
-        if size > self.matrix.shape[0]:
-            grown = np.zeros((size, size), dtype=np.int64)
-            grown[: self.matrix.shape[0], : self.matrix.shape[1]] = self.matrix
-            self.matrix = grown
-        self.matrix += np.bincount(g * size + p, minlength=size * size).reshape(size, size)
+        frame_ids, codes = np.unique(np.concatenate([g, p]), return_inverse=True)
+        merged = np.union1d(self.classes, frame_ids)
+        if len(merged) > len(self.classes):  # re-index the table onto the grown id list
+            grown = np.zeros((len(merged), len(merged)), dtype=np.int64)
+            old = np.searchsorted(merged, self.classes)
+            grown[np.ix_(old, old)] = self.matrix
+            self.classes, self.matrix = merged, grown
+        k = len(frame_ids)
+        counts = np.bincount(codes[: g.size] * k + codes[g.size :], minlength=k * k).reshape(k, k)
+        where = np.searchsorted(self.classes, frame_ids)
+        self.matrix[np.ix_(where, where)] += counts
+
+    @property
+    def total(self) -> int:
+        """Labelled pixels counted so far."""
+        return int(self.matrix.sum())
 
     def iou(self) -> dict[int, float]:
         """IoU of every class present in the ground truth (id 0 excluded)."""
@@ -55,7 +70,9 @@ class ConfusionMatrix:
         tp = np.diag(m)
         gt_count, pred_count = m.sum(1), m.sum(0)
         return {
-            c: float(tp[c] / (gt_count[c] + pred_count[c] - tp[c])) for c in range(1, m.shape[0]) if gt_count[c] > 0
+            int(c): float(tp[i] / (gt_count[i] + pred_count[i] - tp[i]))
+            for i, c in enumerate(self.classes)
+            if c > 0 and gt_count[i] > 0
         }
 
     def miou(self) -> float:
@@ -80,8 +97,11 @@ def paper_frame_miou(pred: object, gt: object) -> float:
         raise ShapeError(f"prediction has {p.size} pixels, ground truth {g.size}")
     keep = g > 0
     p, g = p[keep], g[keep]
-    ious = []
-    for c in np.unique(g):
-        pc, gc = p == c, g == c
-        ious.append((pc & gc).sum() / (pc | gc).sum())
-    return float(np.mean(ious)) if ious else float("nan")
+    if g.size == 0:
+        return float("nan")
+    ids, codes = np.unique(np.concatenate([g, p]), return_inverse=True)  # compact: no table per id value
+    gc, pc = codes[: g.size], codes[g.size :]
+    inter = np.bincount(gc[gc == pc], minlength=len(ids))
+    gt_count, pred_count = np.bincount(gc, minlength=len(ids)), np.bincount(pc, minlength=len(ids))
+    present = gt_count > 0
+    return float(np.mean(inter[present] / (gt_count[present] + pred_count[present] - inter[present])))

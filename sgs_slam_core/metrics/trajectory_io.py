@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from sgs_slam_core.errors import DatasetError, ShapeError
+from sgs_slam_core.fileio import read_text, write_text
 from sgs_slam_core.geometry.se3 import quat_to_rotmat, rotmat_to_quat
 
 __all__ = ["read_tum_trajectory", "write_tum_trajectory"]
@@ -26,16 +27,13 @@ def write_tum_trajectory(path: str | Path, stamps_ns: list[int], c2w: np.ndarray
             f"{stamp // 1_000_000_000}.{stamp % 1_000_000_000:09d} "
             f"{t[0]:.9f} {t[1]:.9f} {t[2]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f} {q[0]:.9f}"
         )
-    Path(path).write_text("\n".join(lines) + "\n")
+    write_text(path, "\n".join(lines) + "\n")  # atomic
 
 
 def read_tum_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """``(stamps_ns [N] int64, c2w [N, 4, 4])`` from a TUM trajectory file."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as err:
-        raise DatasetError(f"cannot read trajectory {path}: {err.strerror or err}") from err
+    text = read_text(path, "trajectory")  # DatasetError when missing, unreadable or binary
     stamps, rows = [], []
     for lineno, line in enumerate(text.splitlines(), 1):
         if not line.strip() or line.lstrip().startswith("#"):

@@ -176,8 +176,10 @@ def render_isotropic_cpu(
 
 
 class _CppWorldIsotropicRender(torch.autograd.Function):
-    """The map's isotropic parameters and the pose in, images out: camera transform, activations,
-    projection, binning and compositing (and their gradients) in C++, no per-Gaussian op in PyTorch.
+    """The map's isotropic parameters and the pose in, images out, all in C++.
+
+    Camera transform, activations, projection, binning and compositing, and their gradients: no
+    per-Gaussian tensor op runs in PyTorch per render (those cost ~3 ms of ~15 at 38k Gaussians).
     """
 
     @staticmethod

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from sgs_slam_core.datasets.base import Dataset
+from sgs_slam_core.fileio import make_dir
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.metrics import (
@@ -107,7 +108,7 @@ class _FrameMetrics:
             vals = [x for x in self.values[key] if np.isfinite(x)]
             return float(np.mean(vals)) if vals else None
 
-        labelled = bool(self.cm.matrix.sum())
+        labelled = self.cm.total > 0
         return {
             "psnr_db": mean("psnr"), "psnr_masked_db": mean("psnr_masked"), "ssim": mean("ssim"),
             "ms_ssim": mean("ms_ssim"), "depth_l1_m": mean("depth_l1"), "lpips": mean("lpips"),
@@ -159,7 +160,7 @@ def evaluate(
     chosen = eval_indices(len(frame_indices), options.eval_every)
     examples = set(chosen[:: max(1, len(chosen) // max(options.render_examples, 1))][: options.render_examples])
     if options.out_dir is not None and examples:
-        (options.out_dir / "renders").mkdir(parents=True, exist_ok=True)
+        make_dir(options.out_dir / "renders")
     for n, t in enumerate(chosen):
         frame = dataset[frame_indices[t]]
         w2c = torch.as_tensor(np.linalg.inv(poses[t]), dtype=torch.float32, device=gaussians.device)

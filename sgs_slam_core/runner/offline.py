@@ -2,19 +2,19 @@
 
 The run folder receives ``trajectory.txt`` (TUM format, camera-to-world), ``metrics.json``,
 ``groundtruth.txt`` (the dataset's ground truth at the same stamps, TUM format), ``config.yaml``
-(resolved), ``run.yaml`` (input and options, for ``sgs-slam eval``, and provenance: git commit,
-versions, device), ``frames.csv`` (per-frame timings and counters), ``map.sgsmap`` (native map),
-``map.ply`` (3DGS splats), ``renders/`` and ``trajectory.png``.
+(resolved), ``run.yaml`` (input and options, for ``sgs-slam eval``, provenance: git commit,
+versions, device, and how the run ended), ``frames.csv`` (per-frame timings and counters),
+``map.sgsmap`` (native map), ``map.ply`` (3DGS splats), ``renders/`` and ``trajectory.png``.
 """
 
 from __future__ import annotations
 
-import csv
+import contextlib
 import logging
 import resource
-import shutil
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,22 +26,27 @@ from torch.profiler import record_function
 from sgs_slam_core.config import dump_yaml
 from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.datasets.base import Dataset
-from sgs_slam_core.errors import DatasetError, FrameError
+from sgs_slam_core.errors import DatasetError, EvaluationError, FrameError, OutputError, SgsSlamError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.mapio import save_map, write_splat_ply
 from sgs_slam_core.metrics import write_tum_trajectory
 from sgs_slam_core.render.api import resolve_backend
 from sgs_slam_core.runner.evaluation import EvalOptions, evaluate
+from sgs_slam_core.runner.outputs import RESULT_FILES, check_run_dir, prepare_run_dir, remove_run, write_csv
 from sgs_slam_core.runner.progress import SlamProgress
 from sgs_slam_core.runner.realtime import RealtimeOptions, RealtimeStats, run_realtime
 from sgs_slam_core.runner.report import write_metrics
-from sgs_slam_core.runner.run_record import GROUND_TRUTH_FILE, write_ground_truth, write_run_yaml
+from sgs_slam_core.runner.run_info import write_run_info
+from sgs_slam_core.runner.run_record import GROUND_TRUTH_FILE, environment, write_ground_truth
+from sgs_slam_core.runner.safety import RunInterrupted, StopRequest
 from sgs_slam_core.slam.system import Slam, StepResult
 from sgs_slam_core.viz.viewer import Viewer
 
-__all__ = ["RunResult", "check_run_dir", "prepare_run_dir", "run_offline"]
+__all__ = ["RunResult", "check_run_dir", "prepare_run_dir", "run_offline"]  # the folder helpers live in outputs
 
 log = logging.getLogger(__name__)
+
+_STOP_MESSAGE = "interrupted: finishing this frame, then writing the run folder (Ctrl-C again to abort)"
 
 _CSV_FIELDS = ("frame", "dataset_index", "stamp_ns", "track_ms", "map_ms", "track_iterations", "track_converged",
                "track_residual_cm", "map_iterations", "added", "pruned", "gaussians", "keyframe", "window",
@@ -57,20 +62,6 @@ class RunResult:
     slam: Slam
     frame_indices: list[int] = field(default_factory=list)
     steps: list[StepResult] = field(default_factory=list)
-
-
-def check_run_dir(out: Path, overwrite: bool) -> None:
-    """Raise unless ``out`` is absent, empty, or may be replaced (call before any long work)."""
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
-        raise DatasetError(f"output folder {out} exists and is not empty (use --overwrite to replace it)")
-
-
-def prepare_run_dir(out: Path, overwrite: bool) -> None:
-    """Create ``out``; an existing non-empty folder is refused unless ``overwrite`` (then replaced)."""
-    check_run_dir(out, overwrite)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        shutil.rmtree(out) if out.is_dir() else out.unlink()
-    out.mkdir(parents=True, exist_ok=True)
 
 
 def _peak_memory_mb(device: torch.device) -> float:
@@ -106,71 +97,77 @@ class _Loop:
     map_s: float = 0.0
     load_s: float = 0.0
     bad_frames: int = 0
+    first_skip: str = ""  # why the first skipped frame was skipped
+    interrupted: bool = False  # stopped by Ctrl-C before the last frame
+    live: RealtimeStats | None = None  # realtime runs: what a live camera would have seen
+
+    def add(self, index: int, step: StepResult, gt_c2w: np.ndarray | None) -> None:
+        """Record a processed frame (``index``: its position in the dataset)."""
+        self.frame_indices.append(index)
+        self.poses.append(step.c2w)
+        self.gts.append(gt_c2w)
+        self.steps.append(step)
+        self.rows.append(_csv_row(step, index))
+        self.track_s += step.track_time_s
+        self.map_s += step.map_time_s
 
 
-def _process_all(slam: Slam, dataset: Dataset, show_progress: bool, viewer: Viewer | None = None) -> _Loop:
-    """Feed every frame to ``slam``; frames it rejects are counted and skipped."""
+def _process_all(slam: Slam, dataset: Dataset, observers: list[Viewer], should_stop: Callable[[], bool]) -> _Loop:
+    """Feed every frame to ``slam``; frames it rejects or that cannot be read are counted and skipped."""
     loop = _Loop()
-    observers = [*([SlamProgress(len(dataset))] if show_progress else []), *([viewer] if viewer else [])]
     for i in range(len(dataset)):
+        if should_stop():
+            loop.interrupted = True
+            break
         t0 = time.perf_counter()
-        with record_function("data_loading"):
-            frame = dataset[i]
-        loop.load_s += time.perf_counter() - t0
         try:
+            with record_function("data_loading"):
+                frame = dataset[i]
+            loop.load_s += time.perf_counter() - t0
             step = slam.process(frame)
-        except FrameError as err:
+        except (FrameError, DatasetError) as err:
             loop.bad_frames += 1
+            loop.first_skip = loop.first_skip or f"frame {i}: {err}"
             log.warning("frame %d skipped: %s", i, err)
             continue
-        loop.frame_indices.append(i)
-        loop.poses.append(step.c2w)
-        loop.gts.append(frame.gt_c2w)
-        loop.steps.append(step)
-        loop.rows.append(_csv_row(step, i))
-        loop.track_s += step.track_time_s
-        loop.map_s += step.map_time_s
+        loop.add(i, step, frame.gt_c2w)
         for observer in observers:  # progress bar, live viewer
             observer.log_step(frame, step, slam)
-    for observer in observers:
-        observer.close()
-    if not loop.frame_indices:
-        raise DatasetError("no frame could be processed")
     return loop
 
 
 def _process_realtime(
-    slam: Slam, dataset: Dataset, hz: float | None, show_progress: bool, viewer: Viewer | None = None
-) -> tuple[_Loop, RealtimeStats]:
+    slam: Slam, dataset: Dataset, hz: float | None, observers: list[Viewer], should_stop: Callable[[], bool]
+) -> _Loop:
     """Release the frames on time into the live pipeline; tracked frames only, in order."""
-    observers = [*([SlamProgress(len(dataset), "slam (realtime)")] if show_progress else []),
-                 *([viewer] if viewer else [])]  # fmt: skip
 
     def on_tracked(frame: Frame, step: StepResult) -> None:
         for observer in observers:  # progress bar (frames not tracked count as passed), live viewer
             observer.log_step(frame, step, slam)
 
-    live = run_realtime(slam, dataset, hz, on_tracked)
-    for observer in observers:
-        observer.close()
-    if not live.steps:
-        raise DatasetError("no frame could be processed")
-    loop = _Loop(bad_frames=live.stats.bad_frames if live.stats else 0)
+    live = run_realtime(slam, dataset, hz, on_tracked, should_stop)
+    loop = _Loop(bad_frames=live.stats.bad_frames, first_skip=live.first_skip, interrupted=live.interrupted,
+                 live=live.stats)  # fmt: skip
     for index, step, gt in zip(live.dataset_indices, live.steps, live.gt_c2w, strict=True):
-        loop.frame_indices.append(index)
-        loop.poses.append(step.c2w)
-        loop.gts.append(gt)
-        loop.steps.append(step)
-        loop.rows.append(_csv_row(step, index))
-        loop.track_s += step.track_time_s
-        loop.map_s += step.map_time_s
-    assert live.stats is not None
-    return loop, live.stats
+        loop.add(index, step, gt)
+    return loop
 
 
-def _timing_metrics(loop: _Loop, live: RealtimeStats | None) -> dict[str, Any]:
+def _write_outputs(out: Path, slam: Slam, loop: _Loop) -> None:
+    """trajectory.txt, groundtruth.txt, frames.csv, map.sgsmap and map.ply, smallest first, each atomically."""
+    stamps = [s.stamp_ns for s in loop.steps]
+    write_tum_trajectory(out / "trajectory.txt", stamps, np.stack(loop.poses))
+    write_ground_truth(out / GROUND_TRUTH_FILE, stamps, loop.gts)
+    write_csv(out / "frames.csv", _CSV_FIELDS, loop.rows)
+    map_file = slam.to_map_file()
+    map_file.trajectory = list(zip(loop.frame_indices, stamps, loop.poses, strict=True))  # dataset frame indices
+    save_map(out / "map.sgsmap", map_file)
+    write_splat_ply(out / "map.ply", slam.gaussians, slam.codec.table)
+
+
+def _timing(loop: _Loop) -> dict[str, Any]:
     """Speed and frame counts: lockstep processes every frame; realtime reports what it kept up with."""
-    frames = len(loop.frame_indices)
+    frames, live = len(loop.frame_indices), loop.live
     if live is None:
         return {"fps": frames / max(loop.track_s + loop.map_s, 1e-9), "track_ms_per_frame": 1e3 * loop.track_s / frames,
                 "map_ms_per_frame": 1e3 * loop.map_s / frames, "load_ms_per_frame": 1e3 * loop.load_s / frames,
@@ -184,19 +181,71 @@ def _timing_metrics(loop: _Loop, live: RealtimeStats | None) -> dict[str, Any]:
             "wall_s": live.wall_s}  # fmt: skip
 
 
-def _write_outputs(out: Path, slam: Slam, loop: _Loop) -> None:
-    """trajectory.txt, frames.csv, map.sgsmap and map.ply."""
-    stamps = [s.stamp_ns for s in loop.steps]
-    write_tum_trajectory(out / "trajectory.txt", stamps, np.stack(loop.poses))
-    write_ground_truth(out / GROUND_TRUTH_FILE, stamps, loop.gts)
-    with (out / "frames.csv").open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=_CSV_FIELDS)
-        writer.writeheader()
-        writer.writerows(loop.rows)
-    map_file = slam.to_map_file()
-    map_file.trajectory = list(zip(loop.frame_indices, stamps, loop.poses, strict=True))  # dataset frame indices
-    save_map(out / "map.sgsmap", map_file)
-    write_splat_ply(out / "map.ply", slam.gaussians, slam.codec.table)
+def _stats(slam: Slam, loop: _Loop, config: SlamConfig) -> dict[str, Any]:
+    """The metrics that come from the run itself (speed, memory, counters), not from the evaluation."""
+    return {
+        "frames": len(loop.frame_indices),
+        **_timing(loop),
+        "num_gaussians": slam.num_gaussians,
+        "peak_memory_mb": _peak_memory_mb(slam.device),
+        "tracking_failures": slam.failures,
+        "bad_frames": loop.bad_frames,
+        "keyframes": len(slam.keyframes),
+        "device": str(slam.device),
+        "render_backend": resolve_backend(config.render.backend, slam.device),
+    }
+
+
+def _track_and_map(
+    dataset: Dataset,
+    config: SlamConfig,
+    out: Path,
+    overwrite: bool,
+    provenance: dict[str, Any],
+    show_progress: bool,
+    realtime: RealtimeOptions | None,
+    viewer: Viewer | None,
+) -> tuple[Slam, _Loop]:
+    """Create the run folder, process the frames, write the results (see :func:`run_offline` on failures)."""
+    created = prepare_run_dir(out, overwrite)
+    try:
+        dump_yaml(config, out / "config.yaml")
+        torch.manual_seed(config.seed)
+        slam = Slam(config, dataset.label_table)
+        provenance.update(environment(slam.device))
+        write_run_info(out / "run.yaml", provenance, "running")
+        slam.prepare(lambda line: print(line, file=sys.stderr))  # compile before anything is timed
+        label = "slam" if realtime is None else "slam (realtime)"
+        observers: list[Viewer] = [*([SlamProgress(len(dataset), label)] if show_progress else []),
+                                   *([viewer] if viewer else [])]  # fmt: skip
+        try:
+            with StopRequest(_STOP_MESSAGE) as stop:
+                if realtime is None:
+                    loop = _process_all(slam, dataset, observers, stop)
+                else:
+                    loop = _process_realtime(slam, dataset, realtime.hz, observers, stop)
+        finally:
+            for observer in observers:  # idempotent: flushes a viewer's stream when the loop stopped early
+                observer.close()
+        if not loop.frame_indices:
+            if loop.interrupted:
+                raise KeyboardInterrupt  # interrupted before the first frame: nothing worth keeping
+            raise DatasetError(f"no frame could be processed: {loop.bad_frames} skipped, the first one: "
+                               f"{loop.first_skip or 'none was tracked'}")  # fmt: skip
+        _write_outputs(out, slam, loop)
+    except OutputError as err:  # e.g. a full disk: keep the results written before it, and say which
+        kept = [name for name in RESULT_FILES if (out / name).is_file()]
+        if not kept:
+            remove_run(out, created)
+            raise
+        note = f"{err}; written before it: {', '.join(kept)}"
+        with contextlib.suppress(OutputError):
+            write_run_info(out / "run.yaml", provenance, "failed", note)
+        raise OutputError(f"{note} (in {out})") from err
+    except BaseException:
+        remove_run(out, created)  # aborted before its results were complete: leave nothing behind
+        raise
+    return slam, loop
 
 
 def run_offline(
@@ -215,37 +264,43 @@ def run_offline(
     ``realtime``: release the frames at their stamps (or a rate) into the live pipeline instead of
     processing every frame in lockstep; metrics and ATE then cover the frames it kept up with.
     ``viewer`` (see :func:`sgs_slam_core.viz.open_viewer`) receives every processed frame live.
+
+    The results (trajectory, frames.csv, maps) are written before the evaluation, so a failing
+    evaluation (raised as :class:`EvaluationError`) never loses them. The first Ctrl-C stops after
+    the current frame and writes the folder for the frames processed so far (raised as
+    :class:`RunInterrupted` once written, without evaluation); a second Ctrl-C, or one before any
+    frame was processed, leaves no run folder. A result that cannot be written (disk full) raises
+    :class:`OutputError` naming it and the results written before it. ``run.yaml`` says how the
+    run ended.
     """
-    out = Path(out)
-    prepare_run_dir(out, overwrite)
-    dump_yaml(config, out / "config.yaml")
-    torch.manual_seed(config.seed)
-    slam = Slam(config, dataset.label_table)
-    write_run_yaml(out / "run.yaml", provenance, slam.device)
-    slam.prepare(lambda line: print(line, file=sys.stderr))  # compile before anything is timed
-    live = None
+    out, provenance = Path(out), dict(provenance or {})
+    slam, loop = _track_and_map(dataset, config, out, overwrite, provenance, show_progress, realtime, viewer)
+    stats = _stats(slam, loop, config)
+    done = {"frames_processed": len(loop.frame_indices), "frames_in_input": len(dataset)}
+    if loop.interrupted:
+        note = (f"interrupted by Ctrl-C after {len(loop.frame_indices)} of {len(dataset)} frames; the results "
+                f"hold those frames, not evaluated (run: sgs-slam eval {out})")  # fmt: skip
+        write_metrics(out / "metrics.json", {**stats, "interrupted": True})
+        write_run_info(out / "run.yaml", provenance, "interrupted", note, **done)
+        raise RunInterrupted(f"{note}; run folder: {out}")
     try:
-        if realtime is None:
-            loop = _process_all(slam, dataset, show_progress, viewer)
-        else:
-            loop, live = _process_realtime(slam, dataset, realtime.hz, show_progress, viewer)
-    finally:
-        if viewer is not None:  # idempotent: flushes the stream when the loop stopped early
-            viewer.close()
-    _write_outputs(out, slam, loop)
-    metrics: dict[str, Any] = evaluate(
-        dataset, loop.frame_indices, loop.poses, slam.gaussians, slam.codec, slam.label_candidates(), config.render,
-        EvalOptions(config.eval_every, render_examples, out),
-    )  # fmt: skip
-    metrics.update(_timing_metrics(loop, live))
-    metrics.update(
-        num_gaussians=slam.num_gaussians,
-        peak_memory_mb=_peak_memory_mb(slam.device),
-        tracking_failures=slam.failures,
-        bad_frames=loop.bad_frames,
-        keyframes=len(slam.keyframes),
-        device=str(slam.device),
-        render_backend=resolve_backend(config.render.backend, slam.device),
-    )
+        metrics: dict[str, Any] = evaluate(
+            dataset, loop.frame_indices, loop.poses, slam.gaussians, slam.codec, slam.label_candidates(),
+            config.render, EvalOptions(config.eval_every, render_examples, out),
+        )  # fmt: skip
+    except KeyboardInterrupt:
+        note = f"evaluation interrupted by Ctrl-C; the results are complete (run: sgs-slam eval {out})"
+        write_metrics(out / "metrics.json", {**stats, "evaluation": "interrupted"})
+        write_run_info(out / "run.yaml", provenance, "evaluation_failed", note, **done)
+        raise RunInterrupted(f"{note}; run folder: {out}") from None
+    except Exception as err:  # a bug or running out of memory in the evaluation must not cost the run
+        reason = str(err) if isinstance(err, SgsSlamError) else f"{type(err).__name__}: {err}"
+        note = f"the run is complete but its evaluation failed: {reason}"
+        write_metrics(out / "metrics.json", {**stats, "evaluation_error": reason})
+        write_run_info(out / "run.yaml", provenance, "evaluation_failed", note, **done)
+        kept = f"trajectory.txt and map.sgsmap are in {out} (retry: sgs-slam eval {out})"
+        raise EvaluationError(f"{note}; {kept}") from err
+    metrics.update(stats)
     write_metrics(out / "metrics.json", metrics)
+    write_run_info(out / "run.yaml", provenance, "complete", **done)
     return RunResult(out, metrics, slam, loop.frame_indices, loop.steps)

@@ -43,24 +43,26 @@ class RealtimeOptions:
 class RealtimeStats:
     """What a live camera at ``realtime_hz`` would have seen the SLAM do."""
 
-    frames_in: int  # released
+    frames_in: int  # in the input (released, or unreadable)
     frames_tracked: int
-    frames_dropped: int  # replaced while tracking was busy (or rejected: see ``bad_frames``)
+    frames_dropped: int  # replaced while tracking was busy
     frames_mapped: int
     realtime_hz: float  # mean release rate
     wall_s: float  # from the first release until mapping finished
     late_frames: int  # released later than their time (the reader could not keep up)
-    bad_frames: int  # rejected by the SLAM (bad depth, stamps going backwards, ...)
+    bad_frames: int  # unreadable, or rejected by the SLAM (bad depth, stamps going backwards, ...)
 
 
 @dataclass
 class RealtimeResult:
     """Tracked frames in order, each as a :class:`StepResult` (``mapping`` set when it was mapped)."""
 
+    stats: RealtimeStats
     steps: list[StepResult] = field(default_factory=list)
     dataset_indices: list[int] = field(default_factory=list)
     gt_c2w: list[np.ndarray | None] = field(default_factory=list)
-    stats: RealtimeStats | None = None
+    interrupted: bool = False  # ``should_stop`` ended the replay before the last frame
+    first_skip: str = ""  # why the first rejected or unreadable frame was skipped
 
 
 def release_times(stamps_ns: list[int], hz: float | None) -> np.ndarray:  # [N] s after the first release
@@ -81,68 +83,104 @@ def run_realtime(
     dataset: Dataset,
     hz: float | None,
     on_tracked: Callable[[Frame, StepResult], None] | None = None,
+    should_stop: Callable[[], bool] = lambda: False,
 ) -> RealtimeResult:
     """Release every frame of ``dataset`` on time into a live pipeline around ``slam``; wait for it.
 
     ``on_tracked(frame, step)`` is called on this (the releasing) thread for each newly tracked frame,
     between releases (progress display, live viewer); ``step.mapping`` is not known yet there.
+    ``should_stop()`` is asked before each release: True ends the replay (the frames in flight finish).
+    A frame that cannot be read is skipped and counted with the frames the SLAM rejects.
     """
-    times = release_times(dataset.stamps_ns, hz)
-    tracked: dict[int, tuple[Frame, TrackOutcome]] = {}
-    mapped: dict[int, MapOutcome] = {}
-    news: queue.SimpleQueue[tuple[Frame, TrackOutcome]] = queue.SimpleQueue()
-    lock = threading.Lock()
+    return _Replay(slam, dataset, on_tracked).run(release_times(dataset.stamps_ns, hz), hz, should_stop)
 
-    def on_pose(frame: Frame, outcome: TrackOutcome) -> None:
-        with lock:
-            tracked[frame.index] = (frame, outcome)
-        news.put((frame, outcome))
 
-    def report() -> None:
-        while on_tracked is not None and not news.empty():
-            frame, outcome = news.get()
-            on_tracked(frame, _step(outcome, None, slam.num_gaussians))
+class _Replay:
+    """One realtime replay: the pipeline's listeners collect outcomes, ``run`` releases the frames."""
 
-    def on_map(frame: Frame, outcome: TrackOutcome, result: MapOutcome) -> None:
-        with lock:
-            mapped[frame.index] = result
+    def __init__(self, slam: Slam, dataset: Dataset, on_tracked: Callable[[Frame, StepResult], None] | None) -> None:
+        self.slam, self.dataset, self.on_tracked = slam, dataset, on_tracked
+        self.tracked: dict[int, tuple[Frame, TrackOutcome]] = {}  # by dataset index
+        self.mapped: dict[int, MapOutcome] = {}
+        self.news: queue.SimpleQueue[tuple[Frame, TrackOutcome]] = queue.SimpleQueue()  # not yet reported
+        self.errors: list[str] = []
+        self.lock = threading.Lock()
+        self.late, self.unreadable, self.first_skip = 0, 0, ""
 
-    pipeline = SlamPipeline(slam, lockstep=False, log=log.warning)
-    pipeline.pose_listeners.append(on_pose)
-    pipeline.map_listeners.append(on_map)
-    late = 0
-    try:
-        start = time.monotonic()
-        for i, due in enumerate(times):
-            frame = dataset[i]  # read before its release time
-            wait = start + due - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
-            elif -wait > _LATE_S:
-                late += 1
-            pipeline.submit_frame(frame, time.monotonic())
-            report()
-        while not pipeline.wait_idle(timeout=0.2):
-            report()
-        wall_s = time.monotonic() - start
-        report()
-    finally:
-        pipeline.shutdown()
-    st = pipeline.stats
-    result = RealtimeResult()
-    for index in sorted(tracked):
-        frame, outcome = tracked[index]
-        m = mapped.get(index)
-        result.steps.append(_step(outcome, m, slam.num_gaussians))
-        result.dataset_indices.append(index)
-        result.gt_c2w.append(frame.gt_c2w)
-    duration = float(times[-1]) if len(times) > 1 else 0.0
-    rate = (len(times) - 1) / duration if duration > 0 else float(hz or 0.0)
-    result.stats = RealtimeStats(
-        frames_in=st.frames_in, frames_tracked=len(tracked), frames_dropped=st.frames_in - len(tracked),
-        frames_mapped=len(mapped), realtime_hz=rate, wall_s=wall_s, late_frames=late, bad_frames=st.errors,
-    )  # fmt: skip
-    return result
+    def on_pose(self, frame: Frame, outcome: TrackOutcome) -> None:  # tracking thread
+        with self.lock:
+            self.tracked[frame.index] = (frame, outcome)
+        self.news.put((frame, outcome))
+
+    def on_map(self, frame: Frame, outcome: TrackOutcome, result: MapOutcome) -> None:  # mapping thread
+        with self.lock:
+            self.mapped[frame.index] = result
+
+    def on_error(self, line: str) -> None:
+        self.errors.append(line)
+        log.warning(line)
+
+    def report(self) -> None:
+        """Hand the newly tracked frames to ``on_tracked`` (on the releasing thread)."""
+        while self.on_tracked is not None and not self.news.empty():
+            frame, outcome = self.news.get()
+            self.on_tracked(frame, _step(outcome, None, self.slam.num_gaussians))
+
+    def read(self, i: int) -> Frame | None:
+        """Frame ``i``, or None (counted, logged) when it cannot be read."""
+        try:
+            return self.dataset[i]
+        except DatasetError as err:
+            self.unreadable += 1
+            self.first_skip = self.first_skip or f"frame {i}: {err}"
+            log.warning("frame %d skipped: %s", i, err)
+            return None
+
+    def run(self, times: np.ndarray, hz: float | None, should_stop: Callable[[], bool]) -> RealtimeResult:
+        pipeline = SlamPipeline(self.slam, lockstep=False, log=self.on_error)
+        pipeline.pose_listeners.append(self.on_pose)
+        pipeline.map_listeners.append(self.on_map)
+        interrupted = False
+        try:
+            start = time.monotonic()
+            for i, due in enumerate(times):
+                if should_stop():
+                    interrupted = True
+                    break
+                frame = self.read(i)  # before its release time
+                if frame is None:
+                    continue
+                wait = start + due - time.monotonic()
+                if wait > 0:
+                    time.sleep(wait)
+                elif -wait > _LATE_S:
+                    self.late += 1
+                pipeline.submit_frame(frame, time.monotonic())
+                self.report()
+            while not pipeline.wait_idle(timeout=0.2):
+                self.report()
+            wall_s = time.monotonic() - start
+            self.report()
+        finally:
+            pipeline.shutdown()
+        result = RealtimeResult(self._stats(pipeline, times, hz, wall_s), interrupted=interrupted,
+                                first_skip=self.first_skip or (self.errors[0] if self.errors else ""))  # fmt: skip
+        for index in sorted(self.tracked):
+            frame, outcome = self.tracked[index]
+            result.steps.append(_step(outcome, self.mapped.get(index), self.slam.num_gaussians))
+            result.dataset_indices.append(index)
+            result.gt_c2w.append(frame.gt_c2w)
+        return result
+
+    def _stats(self, pipeline: SlamPipeline, times: np.ndarray, hz: float | None, wall_s: float) -> RealtimeStats:
+        st = pipeline.stats
+        duration = float(times[-1]) if len(times) > 1 else 0.0
+        rate = (len(times) - 1) / duration if duration > 0 else float(hz or 0.0)
+        return RealtimeStats(
+            frames_in=st.frames_in + self.unreadable, frames_tracked=len(self.tracked),
+            frames_dropped=st.frames_in - len(self.tracked) - st.tracking_errors, frames_mapped=len(self.mapped),
+            realtime_hz=rate, wall_s=wall_s, late_frames=self.late, bad_frames=self.unreadable + st.tracking_errors,
+        )  # fmt: skip
 
 
 def _step(tr: TrackOutcome, m: MapOutcome | None, gaussians: int) -> StepResult:

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from sgs_slam_core.errors import DatasetError
+from sgs_slam_core.fileio import read_text, write_text
 
 __all__ = ["METRIC_ROWS", "format_table", "read_metrics", "write_metrics"]
 
@@ -64,13 +65,13 @@ def _clean(value: Any) -> Any:
 
 
 def write_metrics(path: Path, metrics: dict[str, Any]) -> None:
-    """JSON with NaN/inf as null."""
-    path.write_text(json.dumps(_clean(metrics), indent=2, sort_keys=False) + "\n")
+    """JSON with NaN/inf as null, written atomically."""
+    write_text(path, json.dumps(_clean(metrics), indent=2, sort_keys=False) + "\n")
 
 
 def read_metrics(path: Path) -> dict[str, Any]:
     """Load a ``metrics.json``."""
     try:
-        return json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
+        return json.loads(read_text(path, "metrics file"))
+    except json.JSONDecodeError as err:
         raise DatasetError(f"cannot read metrics {path}: {err}") from err

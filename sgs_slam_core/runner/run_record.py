@@ -19,11 +19,10 @@ from typing import Any
 
 import numpy as np
 import torch
-import yaml
 
 from sgs_slam_core.metrics.trajectory_io import write_tum_trajectory
 
-__all__ = ["GROUND_TRUTH_FILE", "device_info", "environment", "git_info", "write_ground_truth", "write_run_yaml"]
+__all__ = ["GROUND_TRUTH_FILE", "device_info", "environment", "git_info", "write_ground_truth"]
 
 GROUND_TRUTH_FILE = "groundtruth.txt"
 _PACKAGES = ("sgs_slam_ros", "torch", "numpy", "opencv-python-headless", "gsplat", "rosbags", "mcap")
@@ -102,10 +101,3 @@ def environment(device: torch.device) -> dict[str, Any]:
         "host": platform.node(),
         "platform": platform.platform(),
     }
-
-
-def write_run_yaml(path: Path, provenance: dict[str, Any] | None, device: torch.device) -> dict[str, Any]:
-    """``run.yaml``: the caller's input description followed by :func:`environment`; returns it."""
-    record = {**(provenance or {}), **environment(device)}
-    path.write_text(yaml.safe_dump(record, sort_keys=False))
-    return record

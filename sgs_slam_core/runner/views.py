@@ -7,13 +7,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 
 from sgs_slam_core.config import build
 from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.errors import ShapeError
+from sgs_slam_core.fileio import make_dir, write_image
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.mapio.native import MapFile
 from sgs_slam_core.render.api import RenderOutput, render
@@ -69,7 +69,7 @@ class MapViews:
 
     def write(self, poses: Sequence[np.ndarray], k: Intrinsics, out_dir: Path, semantic: bool) -> list[Path]:
         """``color_NNNNN.png``, ``depth_NNNNN.png`` (uint16 mm) and with ``semantic`` ``semantic_NNNNN.png``."""
-        out_dir.mkdir(parents=True, exist_ok=True)
+        make_dir(out_dir)
         written = []
         for i, c2w in enumerate(poses):
             out = self.render(c2w, k, semantic)
@@ -77,12 +77,12 @@ class MapViews:
             depth = np.nan_to_num(out.depth.cpu().numpy(), nan=0.0, posinf=0.0)
             depth_mm = np.clip(np.round(depth * 1000), 0, 65535).astype(np.uint16)
             paths = [out_dir / f"color_{i:05d}.png", out_dir / f"depth_{i:05d}.png"]
-            cv2.imwrite(str(paths[0]), rgb[..., ::-1])
-            cv2.imwrite(str(paths[1]), depth_mm)
+            write_image(paths[0], rgb[..., ::-1])  # atomic: a failed write leaves no partial PNG
+            write_image(paths[1], depth_mm)
             if semantic:
                 labels = self.codec.decode(out.semantic, self.candidates).cpu().numpy()
                 labels[out.silhouette.cpu().numpy() < 0.5] = 0
                 paths.append(out_dir / f"semantic_{i:05d}.png")
-                cv2.imwrite(str(paths[-1]), self.saved.label_table.colorize(labels)[..., ::-1])
+                write_image(paths[-1], self.saved.label_table.colorize(labels)[..., ::-1])
             written += paths
         return written

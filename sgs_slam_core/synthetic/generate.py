@@ -9,7 +9,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 import yaml
 
@@ -17,6 +16,7 @@ from sgs_slam_core.config.loader import config_to_dict
 from sgs_slam_core.datasets.camera_file import write_camera_file
 from sgs_slam_core.datasets.replica import REPLICA_DEPTH_SCALE
 from sgs_slam_core.errors import ConfigError, DatasetError
+from sgs_slam_core.fileio import make_dir, write_image, write_text
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.synthetic.noise import add_depth_holes, add_depth_noise, add_label_noise
 from sgs_slam_core.synthetic.raycast import raycast
@@ -82,7 +82,7 @@ def _prepare(out: Path, overwrite: bool) -> None:
             raise DatasetError(f"{out} exists and is not empty; use --overwrite (overwrite=True) to replace it")
         shutil.rmtree(out)
     for sub in ("frames", "depths", "semantic_ids", "semantic_colors"):
-        (out / sub).mkdir(parents=True, exist_ok=True)
+        make_dir(out / sub)
 
 
 def _write_frame(job: tuple[Path, SynthConfig, int, np.ndarray]) -> int:
@@ -95,10 +95,10 @@ def _write_frame(job: tuple[Path, SynthConfig, int, np.ndarray]) -> int:
     labels = add_label_noise(labels, config.label_noise, config.label_erosion, rng)
     depth_u16 = np.clip(np.round(depth * REPLICA_DEPTH_SCALE), 0, 65535).astype(np.uint16)
     name = f"{i:06d}.png"
-    cv2.imwrite(str(out / "frames" / f"frame{name}"), rgb[..., ::-1])
-    cv2.imwrite(str(out / "depths" / f"depth{name}"), depth_u16)
-    cv2.imwrite(str(out / "semantic_ids" / f"semantic_id{name}"), labels.astype(np.uint16))
-    cv2.imwrite(str(out / "semantic_colors" / f"semantic_color{name}"), scene.label_table.colorize(labels)[..., ::-1])
+    write_image(out / "frames" / f"frame{name}", rgb[..., ::-1])  # atomic: complete or absent, even on a full disk
+    write_image(out / "depths" / f"depth{name}", depth_u16)
+    write_image(out / "semantic_ids" / f"semantic_id{name}", labels.astype(np.uint16))
+    write_image(out / "semantic_colors" / f"semantic_color{name}", scene.label_table.colorize(labels)[..., ::-1])
     return i
 
 
@@ -130,10 +130,11 @@ def generate(
             if progress:
                 progress(done, len(jobs))
     k = config.intrinsics
-    np.savetxt(out / "traj.txt", np.stack([p.reshape(-1) for p in poses]), fmt="%.10f")
     write_camera_file(out / "camera.yaml", k, REPLICA_DEPTH_SCALE)
-    (out / "labels.yaml").write_text(yaml.safe_dump(scene.label_table.to_dict(), sort_keys=False))
-    (out / "synthetic.yaml").write_text(yaml.safe_dump(config_to_dict(config), sort_keys=False))
+    write_text(out / "labels.yaml", yaml.safe_dump(scene.label_table.to_dict(), sort_keys=False))
+    write_text(out / "synthetic.yaml", yaml.safe_dump(config_to_dict(config), sort_keys=False))
+    # last: a sequence without traj.txt is not taken for a Replica folder
+    write_text(out / "traj.txt", "".join(" ".join(f"{v:.10f}" for v in p.reshape(-1)) + "\n" for p in poses))
     return out
 
 

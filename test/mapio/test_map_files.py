@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from sgs_slam_core.errors import MapFileError
+from sgs_slam_core.errors import MapFileError, OutputError
+from sgs_slam_core.fileio import atomic_write
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelTable
@@ -21,7 +22,6 @@ from sgs_slam_core.mapio import (
     write_map_point_cloud,
     write_splat_ply,
 )
-from sgs_slam_core.mapio.atomic import atomic_write
 
 from ..editing.scene import BOX, labelled_scene
 
@@ -150,7 +150,7 @@ def test_truncated_map_file_is_named_and_a_failed_write_keeps_the_previous_file(
         f.write(good[: len(good) // 2])
         raise OSError("disk full")
 
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(OutputError, match=f"cannot write {path}: disk full"):
         atomic_write(path, crash_midway)
     assert path.read_bytes() == good  # the previous file survives
     assert not [p for p in tmp_path.iterdir() if p.name != "m.sgsmap"]  # no temp file left behind

@@ -8,6 +8,7 @@ import yaml
 
 from sgs_slam_core.metrics import read_tum_trajectory
 from sgs_slam_core.runner import run_record
+from sgs_slam_core.runner.run_info import write_run_info
 
 
 def test_ground_truth_keeps_only_frames_that_have_it(tmp_path):
@@ -35,10 +36,9 @@ def test_an_installed_copy_inside_another_repository_reports_no_commit(tmp_path,
 
 
 def test_run_yaml_puts_provenance_after_the_input_description(tmp_path):
-    record = run_record.write_run_yaml(
-        tmp_path / "run.yaml", {"input": "/data/x", "preset": "tum"}, torch.device("cpu")
-    )
+    record = {"input": "/data/x", "preset": "tum", **run_record.environment(torch.device("cpu"))}
+    write_run_info(tmp_path / "run.yaml", record, "complete")
     loaded = yaml.safe_load((tmp_path / "run.yaml").read_text())
-    assert loaded == record and list(loaded)[:2] == ["input", "preset"]
+    assert loaded == {**record, "status": "complete"} and list(loaded)[:2] == ["input", "preset"]
     assert loaded["versions"]["torch"] == torch.__version__ and loaded["device"]["type"] == "cpu"
     assert loaded["device"]["threads"] == torch.get_num_threads() and loaded["device"]["name"]

@@ -1,0 +1,161 @@
+"""Soak benchmark: slam_node (live mode) fed a long synthetic stream; resident memory over time.
+
+The tiny synthetic scene (64x48, 12 frames) is played back and forth at ``--rate-hz`` with
+increasing stamps, so after the first pass every view has been seen and the map stops growing:
+from then on memory must stay flat. slam_node runs in this process (as in the ROS tests) with
+its normal outputs on; every ``--every`` frames the resident set size, the Gaussian count, the
+frames tracked, the keyframes held and the drops are sampled. Writes a plot (memory and map size
+over frames) and a table, and appends both to BENCHMARKS.md.
+
+    python bench/bench_soak.py [--frames 10000] [--rate-hz 100] [--no-append]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+from bench.common import REPO, append_section, markdown_table
+from bench.plot import Series, line_panel, save_panels
+from sgs_slam_core.datasets import open_dataset
+from sgs_slam_core.frame import Frame
+from sgs_slam_core.synthetic import generate, preset_config
+from test.ros.helpers import Feeder, Spinner, new_context, node_params, wait_for
+
+PLOT = REPO / "bench" / "results" / "soak_slam_node_64x48.png"
+
+
+@dataclass(frozen=True)
+class Sample:
+    """The node's state after ``frames`` frames were published."""
+
+    frames: int
+    elapsed_s: float
+    rss_mb: float
+    gaussians: int
+    tracked: int
+    keyframes: int
+    drops: int
+    errors: int
+
+
+def rss_mb() -> float:
+    """Resident memory of this process now (MB)."""
+    return int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def stream(frames: list[Frame], count: int, rate_hz: float):
+    """``count`` frames going back and forth over ``frames``, stamped at ``rate_hz``."""
+    order = [*range(len(frames)), *range(len(frames) - 2, 0, -1)]
+    for i in range(count):
+        yield i, replace(frames[order[i % len(order)]], stamp_ns=10**9 + round(i * 1e9 / rate_hz))
+
+
+def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -> list[Sample]:
+    """Publish ``count`` frames into an in-process slam_node and sample it every ``every`` frames."""
+    from sgs_slam_ros.slam_node import build_slam_nodes  # noqa: PLC0415 - rclpy only when running
+
+    ds = open_dataset(scene)
+    frames = [replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32)) for i in range(len(ds))]
+    ctx = new_context()
+    overrides = [f"tracking.iterations={iterations}", f"mapping.iterations={iterations}"]
+    params = node_params(overrides=overrides, lockstep=False, input_qos="best_effort", render_rate_hz=2.0,
+                         points_rate_hz=1.0, gaussians_rate_hz=0.5, map_path=str(scene / "m.sgsmap"))  # fmt: skip
+    nodes = build_slam_nodes(context=ctx, parameter_overrides=params)
+    feeder = Feeder(ctx)
+    spinner = Spinner(ctx, [*nodes, feeder])
+    tracking = nodes[0]
+    samples: list[Sample] = []
+    try:
+        assert wait_for(feeder.connected, 20.0), "slam_node did not subscribe"
+        start = time.monotonic()
+
+        def sample(published: int) -> None:
+            st, slam, a = tracking.pipeline.stats, tracking.pipeline.slam, tracking.assembler
+            drops = st.dropped_frames + a.sync.dropped + sum(a.rejected.values())
+            samples.append(Sample(published, time.monotonic() - start, rss_mb(), slam.num_gaussians, st.tracked,
+                                  len(slam.keyframes), drops, st.errors))  # fmt: skip
+            print(f"{published:6d} frames  {samples[-1].rss_mb:7.1f} MB  {slam.num_gaussians:6d} G  "
+                  f"{st.tracked:5d} tracked  {len(slam.keyframes):4d} keyframes", flush=True)  # fmt: skip
+
+        sample(0)
+        for i, frame in stream(frames, count, rate_hz):
+            feeder.publish(frame)
+            if (i + 1) % every == 0:
+                sample(i + 1)
+            delay = start + (i + 1) / rate_hz - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        tracking.pipeline.wait_idle(60.0)
+    finally:
+        spinner.stop()
+        for n in [*nodes, feeder]:
+            if hasattr(n, "close"):
+                n.close()
+            n.destroy_node()
+        ctx.try_shutdown()
+    return samples
+
+
+def report(samples: list[Sample], count: int, rate_hz: float, iterations: int) -> str:
+    """Markdown: the plot, a table every 10 % of the stream, and the growth after the first tenth."""
+    every = samples[1].frames - samples[0].frames
+    panels = [
+        line_panel([Series("resident set", np.array([s.rss_mb for s in samples]), (200, 90, 0))],
+                   "slam_node memory", "MB", x_label="frames published", x_step=every),
+        line_panel([Series("Gaussians", np.array([s.gaussians / 1e3 for s in samples]), (40, 140, 40)),
+                    Series("keyframes / 10", np.array([s.keyframes / 10 for s in samples]), (30, 30, 200)),
+                    Series("frames tracked / 100", np.array([s.tracked / 100 for s in samples]), (150, 150, 150))],
+                   "map size", "thousands of Gaussians", x_label="frames published", x_step=every),
+    ]  # fmt: skip
+    PLOT.parent.mkdir(parents=True, exist_ok=True)
+    save_panels(PLOT, panels)
+    picked = sorted({*range(0, len(samples), max(1, len(samples) // 10)), len(samples) - 1})
+    rows = [[f"{s.frames:,}", f"{s.elapsed_s:.0f}", f"{s.rss_mb:.0f}", f"{s.gaussians:,}", f"{s.tracked:,}",
+             s.keyframes, f"{s.drops:,}", s.errors] for s in (samples[i] for i in picked)]  # fmt: skip
+    tenth = samples[max(1, len(samples) // 10)]
+    last = samples[-1]
+    per_k = (last.rss_mb - tenth.rss_mb) / max((last.frames - tenth.frames) / 1000, 1e-9)
+    table = markdown_table(["frames published", "s", "RSS MB", "Gaussians", "tracked", "keyframes", "drops",
+                            "errors"], rows)  # fmt: skip
+    return (
+        f"slam_node in live mode (best-effort input, outputs on) fed {count:,} frames of the tiny synthetic scene "
+        f"(64x48, back and forth) at {rate_hz:g} Hz; tracking and mapping {iterations} iterations. Peak resident "
+        f"memory {max(s.rss_mb for s in samples):.0f} MB; from {tenth.frames:,} to {last.frames:,} frames it went "
+        f"{tenth.rss_mb:.0f} -> {last.rss_mb:.0f} MB ({per_k:+.2f} MB per 1,000 frames) while the map held "
+        f"{tenth.gaussians:,} -> {last.gaussians:,} Gaussians and {tenth.keyframes} -> {last.keyframes} keyframes.\n\n"
+        f"![soak]({PLOT.relative_to(REPO)})\n\n{table}\n"
+    )
+
+
+def main() -> int:
+    """Run the soak and report it."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=10_000)
+    parser.add_argument("--rate-hz", type=float, default=100.0)
+    parser.add_argument("--every", type=int, default=50, help="sample every N frames")
+    parser.add_argument("--iterations", type=int, default=5, help="tracking and mapping iterations")
+    parser.add_argument("--no-append", action="store_true", help="print only; leave BENCHMARKS.md alone")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        scene = generate(Path(tmp) / "tiny", preset_config("tiny"))
+        samples = soak(scene, args.frames, args.rate_hz, args.every, args.iterations)
+    body = report(samples, args.frames, args.rate_hz, args.iterations)
+    print(body)
+    if not args.no_append:
+        append_section(f"Soak: slam_node, {args.frames:,} frames (64x48)", body)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
