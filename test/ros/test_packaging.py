@@ -32,6 +32,8 @@ ROSDEP_KEY = {
     "zstandard": "python3-zstandard",
     "lz4": "python3-lz4",
     "ninja": "ninja-build",
+    "matplotlib": "python3-matplotlib",
+    "tqdm": "python3-tqdm",
 }
 
 
