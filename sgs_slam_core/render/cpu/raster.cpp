@@ -719,57 +719,70 @@ struct Camera {
   double near, eps2d, alpha_min, extent_sigma;
 };
 
+// The camera's constants in the working precision, computed once per call instead of per Gaussian
+// (the same expressions in the same order, so the results are bit for bit those of the per-Gaussian
+// form): focal lengths, principal point, the clamp of x/z and y/z to 1.3x the field of view used by
+// the projection's Jacobian (as 3DGS/gsplat), near plane, dilation, and the footprint cuts.
 template <typename T>
-void project_one(const Camera& k, const T* mc, T scale, T opacity, T* m2d, T* con, T* radius, T* depth) {
+struct Proj {
+  T fx, fy, cx, cy, lx0, lx1, ly0, ly1, near, eps2d, alpha_min, extent2;
+
+  explicit Proj(const Camera& k)
+      : fx(T(k.fx)), fy(T(k.fy)), cx(T(k.cx)), cy(T(k.cy)), near(T(k.near)), eps2d(T(k.eps2d)),
+        alpha_min(T(k.alpha_min)), extent2(T(k.extent_sigma * k.extent_sigma)) {
+    const T tan_x = T(0.5) * T(k.width) / fx, tan_y = T(0.5) * T(k.height) / fy;
+    lx0 = -(cx + T(0.5)) / fx - T(0.3) * tan_x;
+    lx1 = (T(k.width) - cx - T(0.5)) / fx + T(0.3) * tan_x;
+    ly0 = -(cy + T(0.5)) / fy - T(0.3) * tan_y;
+    ly1 = (T(k.height) - cy - T(0.5)) / fy + T(0.3) * tan_y;
+  }
+};
+
+template <typename T>
+inline void project_one(const Proj<T>& k, const T* mc, T scale, T opacity, T* m2d, T* con, T* radius, T* depth) {
   const T x = mc[0], y = mc[1], z = mc[2];
-  const bool front = z > T(k.near);
+  const bool front = z > k.near;
   const T zs = front ? z : T(1);
   const T xz = x / zs, yz = y / zs;
-  m2d[0] = T(k.fx) * xz + T(k.cx);
-  m2d[1] = T(k.fy) * yz + T(k.cy);
-  const T tan_x = T(0.5) * T(k.width) / T(k.fx), tan_y = T(0.5) * T(k.height) / T(k.fy);
-  const T lx0 = -(T(k.cx) + T(0.5)) / T(k.fx) - T(0.3) * tan_x, lx1 = (T(k.width) - T(k.cx) - T(0.5)) / T(k.fx) + T(0.3) * tan_x;
-  const T ly0 = -(T(k.cy) + T(0.5)) / T(k.fy) - T(0.3) * tan_y, ly1 = (T(k.height) - T(k.cy) - T(0.5)) / T(k.fy) + T(0.3) * tan_y;
-  const T tx = std::min(std::max(xz, lx0), lx1), ty = std::min(std::max(yz, ly0), ly1);
+  m2d[0] = k.fx * xz + k.cx;
+  m2d[1] = k.fy * yz + k.cy;
+  const T tx = std::min(std::max(xz, k.lx0), k.lx1), ty = std::min(std::max(yz, k.ly0), k.ly1);
   const T iz = T(1) / zs;
   const T s2 = (scale * iz) * (scale * iz);
-  const T a = s2 * T(k.fx) * T(k.fx) * (T(1) + tx * tx) + T(k.eps2d);
-  const T b = s2 * T(k.fx) * T(k.fy) * tx * ty;
-  const T c = s2 * T(k.fy) * T(k.fy) * (T(1) + ty * ty) + T(k.eps2d);
+  const T a = s2 * k.fx * k.fx * (T(1) + tx * tx) + k.eps2d;
+  const T b = s2 * k.fx * k.fy * tx * ty;
+  const T c = s2 * k.fy * k.fy * (T(1) + ty * ty) + k.eps2d;
   const T det = std::max(a * c - b * b, T(1e-12));
   con[0] = c / det;
   con[1] = -b / det;
   con[2] = a / det;
   depth[0] = z;
   const T lam = T(0.5) * (a + c) + std::sqrt((T(0.5) * (a - c)) * (T(0.5) * (a - c)) + b * b);
-  const T ratio = std::max(opacity / T(k.alpha_min), T(1));
-  const T extent2 = std::min(T(2) * std::log(ratio), T(k.extent_sigma * k.extent_sigma));
+  const T ratio = std::max(opacity / k.alpha_min, T(1));
+  const T extent2 = std::min(T(2) * std::log(ratio), k.extent2);
   const T r = std::sqrt(extent2 * lam);
-  const bool visible = front && opacity >= T(k.alpha_min) && std::isfinite(r);
+  const bool visible = front && opacity >= k.alpha_min && std::isfinite(r);
   radius[0] = visible ? r : T(0);
 }
 
 // Gradients of project_one with respect to the camera-frame mean and the scale.
 template <typename T>
-void project_one_backward(const Camera& k, const T* mc, T scale, const T* g_m2d, const T* g_con, T g_depth, T* g_mc,
-                          T* g_scale) {
+inline void project_one_backward(const Proj<T>& k, const T* mc, T scale, const T* g_m2d, const T* g_con, T g_depth,
+                                 T* g_mc, T* g_scale) {
   const T x = mc[0], y = mc[1], z = mc[2];
-  if (!(z > T(k.near))) {
+  if (!(z > k.near)) {
     g_mc[0] = g_mc[1] = g_mc[2] = T(0);
     *g_scale = T(0);
     return;
   }
-  const T fx = T(k.fx), fy = T(k.fy);
+  const T fx = k.fx, fy = k.fy;
   const T xz = x / z, yz = y / z, iz = T(1) / z;
-  const T tan_x = T(0.5) * T(k.width) / fx, tan_y = T(0.5) * T(k.height) / fy;
-  const T lx0 = -(T(k.cx) + T(0.5)) / fx - T(0.3) * tan_x, lx1 = (T(k.width) - T(k.cx) - T(0.5)) / fx + T(0.3) * tan_x;
-  const T ly0 = -(T(k.cy) + T(0.5)) / fy - T(0.3) * tan_y, ly1 = (T(k.height) - T(k.cy) - T(0.5)) / fy + T(0.3) * tan_y;
-  const T tx = std::min(std::max(xz, lx0), lx1), ty = std::min(std::max(yz, ly0), ly1);
-  const bool free_x = xz > lx0 && xz < lx1, free_y = yz > ly0 && yz < ly1;
+  const T tx = std::min(std::max(xz, k.lx0), k.lx1), ty = std::min(std::max(yz, k.ly0), k.ly1);
+  const bool free_x = xz > k.lx0 && xz < k.lx1, free_y = yz > k.ly0 && yz < k.ly1;
   const T s2 = (scale * iz) * (scale * iz);
-  const T a = s2 * fx * fx * (T(1) + tx * tx) + T(k.eps2d);
+  const T a = s2 * fx * fx * (T(1) + tx * tx) + k.eps2d;
   const T b = s2 * fx * fy * tx * ty;
-  const T c = s2 * fy * fy * (T(1) + ty * ty) + T(k.eps2d);
+  const T c = s2 * fy * fy * (T(1) + ty * ty) + k.eps2d;
   const T det = a * c - b * b;
   const T id2 = T(1) / (det * det);
   const T gA = g_con[0], gB = g_con[1], gC = g_con[2];
@@ -793,16 +806,18 @@ void project_one_backward(const Camera& k, const T* mc, T scale, const T* g_m2d,
 template <typename T>
 void project_all(const Camera& k, int64_t n, const T* mc, const T* sc, const T* op, T* m2d, T* con, T* rad, T* dep,
                  int threads) {
+  const Proj<T> pk(k);
 #pragma omp parallel for num_threads(threads) schedule(static)
-  for (int64_t g = 0; g < n; ++g) project_one(k, mc + 3 * g, sc[g], op[g], m2d + 2 * g, con + 3 * g, rad + g, dep + g);
+  for (int64_t g = 0; g < n; ++g) project_one(pk, mc + 3 * g, sc[g], op[g], m2d + 2 * g, con + 3 * g, rad + g, dep + g);
 }
 
 template <typename T>
 void project_backward_all(const Camera& k, int64_t n, const T* mc, const T* sc, const T* g_m2d, const T* g_con,
                           const T* g_dep, int64_t dep_stride, T* g_mc, T* g_sc, int threads) {
+  const Proj<T> pk(k);
 #pragma omp parallel for num_threads(threads) schedule(static)
   for (int64_t g = 0; g < n; ++g)
-    project_one_backward(k, mc + 3 * g, sc[g], g_m2d + 2 * g, g_con + 3 * g, g_dep[g * dep_stride], g_mc + 3 * g,
+    project_one_backward(pk, mc + 3 * g, sc[g], g_m2d + 2 * g, g_con + 3 * g, g_dep[g * dep_stride], g_mc + 3 * g,
                          g_sc + g);
 }
 
@@ -1033,6 +1048,7 @@ void prepare_world_all(const Camera& k, int64_t n, int64_t ns, const T* m, const
                        const T* sem, const T* P, T* pmc, T* psc, T* pop, T* pf, T* pm2d, T* pcon, T* prad,
                        int threads) {
   const int64_t d = 3 + ns + 1;
+  const Proj<T> pk(k);
 #pragma omp parallel for num_threads(threads) schedule(static)
   for (int64_t g = 0; g < n; ++g) {
     const T x = m[3 * g], y = m[3 * g + 1], z = m[3 * g + 2];
@@ -1045,7 +1061,7 @@ void prepare_world_all(const Camera& k, int64_t n, int64_t ns, const T* m, const
     f[1] = col[3 * g + 1];
     f[2] = col[3 * g + 2];
     for (int64_t j = 0; j < ns; ++j) f[3 + j] = sem[ns * g + j];
-    project_one(k, c, psc[g], pop[g], pm2d + 2 * g, pcon + 3 * g, prad + g, f + d - 1);
+    project_one(pk, c, psc[g], pop[g], pm2d + 2 * g, pcon + 3 * g, prad + g, f + d - 1);
   }
 }
 
@@ -1053,11 +1069,12 @@ void prepare_world_all(const Camera& k, int64_t n, int64_t ns, const T* m, const
 template <typename T>
 void world_backward_all(const Camera& k, int64_t n, int64_t ns, int64_t stride, const T* P, const T* mc, const T* sc,
                         const T* op, const T* r, T* pgm, T* pls, T* plo, T* pcol, T* psem, T* pmc, int threads) {
+  const Proj<T> pk(k);
 #pragma omp parallel for num_threads(threads) schedule(static)
   for (int64_t g = 0; g < n; ++g) {
     const T* row = r + stride * g;
     T gc[3], gs;
-    project_one_backward(k, mc + 3 * g, sc[g], row, row + 2, row[stride - 1], gc, &gs);
+    project_one_backward(pk, mc + 3 * g, sc[g], row, row + 2, row[stride - 1], gc, &gs);
     for (int j = 0; j < 3; ++j) pgm[3 * g + j] = P[j] * gc[0] + P[4 + j] * gc[1] + P[8 + j] * gc[2];  // R^T g
     pls[g] = gs * sc[g];
     plo[g] = row[5] * op[g] * (T(1) - op[g]);
