@@ -1,4 +1,9 @@
-"""The compiled extensions' cache names: one per source text, flags, torch and CPU."""
+"""The compiled extensions: cache names (one per source text, flags, torch and CPU), and that they build."""
+
+import os
+import shutil
+
+import pytest
 
 from sgs_slam_core.native import NativeExtension
 
@@ -20,3 +25,13 @@ def test_a_disabled_build_explains_itself(tmp_path, monkeypatch):
     src.write_text("// never built\n")
     ext = NativeExtension("k", src, "a kernel")
     assert not ext.is_available() and "SGS_SLAM_NO_CPP" in ext.unavailable_reason()
+
+
+@pytest.mark.skipif(shutil.which("g++") is None or bool(os.environ.get("SGS_SLAM_NO_CPP")), reason="no C++ compiler")
+def test_the_kernels_build_where_there_is_a_compiler():
+    """The compiled tests skip when a build fails (a laptop without g++); here a failed build is a failure."""
+    from sgs_slam_core.render import cpu_backend
+    from sgs_slam_core.slam import photometric
+
+    for ext in (cpu_backend.EXTENSION, photometric.EXTENSION):
+        assert ext.is_available(), ext.unavailable_reason()
