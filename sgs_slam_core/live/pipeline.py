@@ -10,7 +10,11 @@ both drive it. Callers only hand over frames; the work happens on two worker thr
 - **Lockstep**: every frame is kept and frame t is tracked only after frame t-1 is mapped (or, with
   a separate mapping process, after ``ready_to_track`` says its map has arrived).
 
-On CUDA the mapping thread runs on its own stream. Two synchronisations make that safe: ``Slam``
+Live, on the CPU the two workers take
+turns instead of running their kernels at the same time (two thread teams on a few cores slow each
+other down, measured): after each tracked frame mapping may run for as long as that frame's
+tracking took, then it pauses between its steps while a frame is being tracked or waits to be. On
+CUDA the mapping thread runs on its own stream, beside tracking. Two synchronisations make that safe: ``Slam``
 finishes a side stream's work before it publishes a map (``Slam._set_gaussians``), and tracking
 reads its result back to the host before it returns, so no tensor is freed while a kernel of the
 other thread may still read it.
@@ -92,6 +96,10 @@ class SlamPipeline:
         self._busy = {"track": False, "map": False}
         self._running = True
         self._map_stream = torch.cuda.Stream(slam.device) if slam.device.type == "cuda" else None
+        # live on the CPU: tracking and mapping take turns instead of sharing the cores (see the module doc)
+        self._share_cpu = not lockstep and track and map and slam.device.type == "cpu"
+        self._map_share = 1.0  # mapping's turn after each tracked frame, in units of that frame's tracking time
+        self._map_turn_until = 0.0  # time.monotonic() until which mapping may run before the next frame
         self._threads = []
         if track:
             self._threads.append(threading.Thread(target=self._track_loop, name="sgs-track", daemon=True))
@@ -132,23 +140,31 @@ class SlamPipeline:
 
     def _can_track(self) -> bool:
         if not self.lockstep:
-            # live: the first frame goes at once, later ones once there is a map to track against
-            return (not self.map_enabled or self.slam.frames_processed == 0 or self.slam.num_gaussians > 0
-                    or self._mapping_idle())  # fmt: skip
+            if not self.map_enabled or self.slam.frames_processed == 0:
+                return True
+            if self.slam.num_gaussians == 0 and not self._mapping_idle():
+                return False  # the first frame's Gaussians are being made
+            return self._mapping_idle() or time.monotonic() >= self._map_turn_until
         if self.map_enabled and not self._mapping_idle():
             return False
         return self.ready_to_track is None or self.ready_to_track(self.slam.frames_processed)
 
+    def _track_wait_s(self) -> float:
+        """How long the tracker sleeps before it looks again (mapping's turn ends on a clock, not an event)."""
+        return min(0.5, max(0.001, self._map_turn_until - time.monotonic()))
+
     def _track_loop(self) -> None:
         while True:
             with self._cv:
-                self._cv.wait_for(lambda: not self._running or (self._frames and self._can_track()), timeout=0.5)
+                self._cv.wait_for(lambda: not self._running or (self._frames and self._can_track()),
+                                  timeout=self._track_wait_s())  # fmt: skip
                 if not self._running:
                     return
                 if not self._frames or not self._can_track():
                     continue
                 received_at, frame = self._frames.popleft()
                 self._busy["track"] = True
+            started = time.monotonic()
             try:
                 outcome = self.slam.track(frame)
             except Exception as err:
@@ -157,6 +173,8 @@ class SlamPipeline:
                 outcome = None
             with self._cv:
                 self._busy["track"] = False
+                if self._share_cpu:  # mapping's turn: as long as this frame's tracking took
+                    self._map_turn_until = time.monotonic() + self._map_share * (time.monotonic() - started)
                 if outcome is not None:
                     self.stats.tracked += 1
                     self.stats.tracking_failures += int(outcome.failed)
@@ -182,7 +200,7 @@ class SlamPipeline:
             try:
                 with self._on_map_stream():
                     tracked = job.tracked or self.slam.register(job.frame, job.c2w)
-                    result = self.slam.map(job.frame, tracked)
+                    result = self.slam.map(job.frame, tracked, self._map_turn if self._share_cpu else None)
             except Exception as err:
                 self.stats.mapping_errors += 1
                 self._error("mapping", err)
@@ -192,6 +210,18 @@ class SlamPipeline:
                 self._cv.notify_all()
             if result is not None and tracked is not None:
                 self._notify("publishing the map", self.map_listeners, job.frame, tracked, result)
+
+    def _map_turn(self) -> None:
+        """Between mapping steps (live, CPU): go on during mapping's turn, else wait while tracking has work."""
+        with self._cv:
+            self._cv.wait_for(
+                lambda: (
+                    not self._running
+                    or time.monotonic() < self._map_turn_until
+                    or not (self._busy["track"] or (self._frames and self._can_track()))
+                ),
+                timeout=10.0,
+            )
 
     @contextlib.contextmanager
     def _on_map_stream(self) -> Iterator[None]:

@@ -1,6 +1,8 @@
 """A dataset replayed as a live camera would deliver it (``sgs-slam run --realtime [HZ]``).
 
-Frames are released at their recorded stamps (or at ``hz``) into the live pipeline,
+The first frame initialises the map (it is tracked and mapped before anything else, as a robot
+waits for its SLAM to be ready before it moves); from then on frames are released at their
+recorded stamps (or at ``hz``) into the live pipeline,
 :class:`~sgs_slam_core.live.SlamPipeline`, the one the ROS nodes drive: a frame that arrives while
 the tracker is still busy replaces the one waiting for it (a camera driver's queue of one) and is
 counted as dropped; mapping runs beside tracking, at its own pace, on the newest tracked frame.
@@ -106,6 +108,7 @@ class _Replay:
         self.errors: list[str] = []
         self.lock = threading.Lock()
         self.late, self.unreadable, self.first_skip = 0, 0, ""
+        self.started = False  # the camera clock runs (after initialisation)
 
     def on_pose(self, frame: Frame, outcome: TrackOutcome) -> None:  # tracking thread
         with self.lock:
@@ -150,12 +153,16 @@ class _Replay:
                 frame = self.read(i)  # before its release time
                 if frame is None:
                     continue
+                if self.tracked and i > 0 and not self.started:  # initialised: the camera starts moving now
+                    start, self.started = time.monotonic() - due, True
                 wait = start + due - time.monotonic()
                 if wait > 0:
                     time.sleep(wait)
                 elif -wait > _LATE_S:
                     self.late += 1
                 pipeline.submit_frame(frame, time.monotonic())
+                if not self.started and not self.tracked:  # initialisation: the first frame is tracked and mapped
+                    pipeline.wait_idle(timeout=600.0)
                 self.report()
             while not pipeline.wait_idle(timeout=0.2):
                 self.report()

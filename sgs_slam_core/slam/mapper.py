@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,16 +58,20 @@ def map_window(
     use_semantics: bool,
     rng: np.random.Generator,
     frozen_labels: frozenset[int] = frozenset(),
+    between_iterations: Callable[[], None] | None = None,
 ) -> MapResult:
     """``s.iterations`` Adam steps (fresh optimiser), each on one frame drawn uniformly from the window.
 
-    Gaussians of ``frozen_labels`` are left exactly as they are.
+    Gaussians of ``frozen_labels`` are left exactly as they are. ``between_iterations`` is called
+    before each step (live operation: it returns when mapping may go on).
     """
     t0 = time.perf_counter()
     opt = GaussianOptimizer(gaussians, s, frozen_labels)
     pruned, last = 0, float("nan")
     prune_at = set(s.prune_iterations)
     for it in range(s.iterations):
+        if between_iterations is not None:
+            between_iterations()
         wf = window[int(rng.integers(len(window)))]
         semantic = use_semantics and wf.data.semantic is not None
         with record_function("map.render"):

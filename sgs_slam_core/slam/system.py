@@ -218,14 +218,22 @@ class Slam:
         self.frames_processed += 1
         return TrackOutcome(index, frame.stamp_ns, c2w, None, None, 0.0)
 
-    def map(self, frame: Frame, tracked: TrackOutcome) -> MapOutcome:
-        """Densify, select the window, optimise the map, and keep keyframes (nothing on a failed frame)."""
+    def map(
+        self, frame: Frame, tracked: TrackOutcome, between_iterations: Callable[[], None] | None = None
+    ) -> MapOutcome:
+        """Densify, select the window, optimise the map, and keep keyframes (nothing on a failed frame).
+
+        ``between_iterations`` is called before each mapping step (the live pipeline pauses mapping
+        there while tracking has work).
+        """
         if tracked.failed:
             return MapOutcome(None, None, False, 0, 0.0)
         with self._mutate:
-            return self._map_frame(frame, tracked)
+            return self._map_frame(frame, tracked, between_iterations)
 
-    def _map_frame(self, frame: Frame, tracked: TrackOutcome) -> MapOutcome:
+    def _map_frame(
+        self, frame: Frame, tracked: TrackOutcome, between_iterations: Callable[[], None] | None = None
+    ) -> MapOutcome:
         t0 = time.perf_counter()
         index, c2w = tracked.index, tracked.c2w
         if tracked.frame_data is None:
@@ -248,7 +256,7 @@ class Slam:
             with record_function("keyframe_selection"):
                 window = self._select_window(data, c2w, frame.labels, index)
             timings["keyframe_selection"] = time.perf_counter() - t_sel
-            mapping = self._map(data, c2w, window, use_sem)
+            mapping = self._map(data, c2w, window, use_sem, between_iterations)
             self._set_gaussians(mapping.gaussians)
         if self.config.mapping.refresh_labels and use_sem:
             self._refresh_labels()
@@ -417,7 +425,14 @@ class Slam:
         world = cam @ c2w[:3, :3].T + c2w[:3, 3]
         return select_window(self.keyframes, world, labels, index, self.config.keyframes, self.rng)
 
-    def _map(self, data: FrameTensors, c2w: np.ndarray, window: Window, use_sem: bool) -> MapResult:
+    def _map(
+        self,
+        data: FrameTensors,
+        c2w: np.ndarray,
+        window: Window,
+        use_sem: bool,
+        between_iterations: Callable[[], None] | None = None,
+    ) -> MapResult:
         frames = []
         for store_index, weight in zip(window.keyframes, window.weights[:-1], strict=True):
             kf = self.keyframes[store_index]
@@ -429,7 +444,7 @@ class Slam:
         w2c_now = torch.as_tensor(np.linalg.inv(c2w), dtype=torch.float32, device=self.device)
         frames.append(WindowFrame(data, w2c_now, window.weights[-1]))
         return map_window(self.gaussians, frames, self.config.mapping, self.config.render, self.scene_radius, use_sem,
-                          self.rng, self.locked_labels)  # fmt: skip
+                          self.rng, self.locked_labels, between_iterations)  # fmt: skip
 
     def _refresh_labels(self) -> None:
         current = self.gaussians

@@ -36,8 +36,35 @@ class GatedSlam:
         self.frames_processed += 1
         return SimpleNamespace(failed=False, index=frame.index)
 
-    def map(self, frame, tracked):
+    def map(self, frame, tracked, between_iterations=None):
         self.num_gaussians += 1
+        return SimpleNamespace()
+
+
+class TimedSlam(GatedSlam):
+    """Tracking takes 30 ms; mapping runs 20 steps of 5 ms and records whether tracking was running."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.tracking_now = False
+        self.steps_during_tracking = 0
+        self.steps = 0
+
+    def track(self, frame):
+        self.tracking_now = True
+        time.sleep(0.03)
+        self.tracking_now = False
+        self.frames_processed += 1
+        return SimpleNamespace(failed=False, index=frame.index)
+
+    def map(self, frame, tracked, between_iterations=None):
+        self.num_gaussians += 1
+        for _ in range(20):
+            if between_iterations is not None:
+                between_iterations()
+            self.steps_during_tracking += int(self.tracking_now)
+            self.steps += 1
+            time.sleep(0.005)
         return SimpleNamespace()
 
 
@@ -59,6 +86,20 @@ def test_frames_arriving_while_tracking_is_busy_replace_the_waiting_one():
         assert (st.frames_in, st.tracked, st.dropped_frames) == (6, 2, 4)
     finally:
         slam.gate.release()
+        pipeline.shutdown()
+
+
+def test_live_on_the_cpu_mapping_steps_never_start_while_a_frame_is_tracked():
+    slam = TimedSlam()
+    pipeline = SlamPipeline(slam, lockstep=False, log=lambda _: None)
+    try:
+        for i in range(12):  # a 100 Hz camera: tracking (30 ms) and mapping (100 ms a job) cannot both keep up
+            pipeline.submit_frame(SimpleNamespace(index=i))
+            time.sleep(0.01)
+        assert pipeline.wait_idle(10.0)
+        assert slam.steps >= 20 and slam.steps_during_tracking == 0
+        assert pipeline.stats.tracked >= 2 and pipeline.stats.mapped >= 1
+    finally:
         pipeline.shutdown()
 
 
