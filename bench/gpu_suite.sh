@@ -54,12 +54,18 @@ run_suite() {
   : "${OUT:=$PWD/gpu_out}"
   mkdir -p "$OUT"
   export SGS_SLAM_BENCH_OUT=$OUT/BENCHMARKS-gpu.md TORCH_EXTENSIONS_DIR=${TORCH_EXTENSIONS_DIR:-/tmp/torch_ext}
-  export MAX_JOBS=${MAX_JOBS:-16} PYTHONPATH=/tmp/sgs_site:$PWD XDG_CACHE_HOME=/tmp/sgs_cache
+  export MAX_JOBS=${MAX_JOBS:-16} PYTHONPATH=$PWD XDG_CACHE_HOME=/tmp/sgs_cache
   : > "$OUT/summary.txt"
   { nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo "no GPU";
     $PY -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"; } | tee -a "$OUT/summary.txt"
   if [ "$device" = cuda ] && ls .whl/*.whl > /dev/null 2>&1; then
-    $PY -m pip install -q --no-index --no-deps --target /tmp/sgs_site .whl/*.whl > "$OUT/pip.log" 2>&1
+    # a venv over the image's packages (torch): wheels go into its site-packages, where the ROS wheels'
+    # start-up hook (a .pth file) runs; a plain --target folder on PYTHONPATH would skip it
+    local site
+    site=$($PY -c 'import sys; print(f"/tmp/sgs_venv/lib/python{sys.version_info[0]}.{sys.version_info[1]}/site-packages")')
+    $PY -m venv --system-site-packages --without-pip /tmp/sgs_venv
+    $PY -m pip install -q --no-index --no-deps --target "$site" .whl/*.whl > "$OUT/pip.log" 2>&1
+    PY=/tmp/sgs_venv/bin/python
   fi
   local build_pid=""
   if [ "$device" = cuda ]; then  # gsplat compiles (1-2 min) while the scene is generated

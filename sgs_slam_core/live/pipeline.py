@@ -10,14 +10,13 @@ both drive it. Callers only hand over frames; the work happens on two worker thr
 - **Lockstep**: every frame is kept and frame t is tracked only after frame t-1 is mapped (or, with
   a separate mapping process, after ``ready_to_track`` says its map has arrived).
 
-Live, on the CPU the two workers take
-turns instead of running their kernels at the same time (two thread teams on a few cores slow each
-other down, measured): after each tracked frame mapping may run for as long as that frame's
-tracking took, then it pauses between its steps while a frame is being tracked or waits to be. On
-CUDA the mapping thread runs on its own stream, beside tracking. Two synchronisations make that safe: ``Slam``
-finishes a side stream's work before it publishes a map (``Slam._set_gaussians``), and tracking
-reads its result back to the host before it returns, so no tensor is freed while a kernel of the
-other thread may still read it.
+Live on the CPU, the two workers take turns instead of running their kernels at the same time (two
+thread teams on a few cores slow each other down, measured): after each tracked frame mapping may
+run for as long as that frame's tracking took, then it pauses between its steps while a frame is
+being tracked or waits to be. On CUDA the mapping thread runs on its own stream, beside tracking.
+Two synchronisations make that safe: ``Slam`` finishes a side stream's work before it publishes a
+map (``Slam._set_gaussians``), and tracking reads its result back to the host before it returns,
+so no tensor is freed while a kernel of the other thread may still read it.
 """
 
 from __future__ import annotations

@@ -50,7 +50,7 @@ class RealtimeStats:
     frames_dropped: int  # replaced while tracking was busy
     frames_mapped: int
     realtime_hz: float  # mean release rate
-    wall_s: float  # from the first release until mapping finished
+    wall_s: float  # from the camera's start (after initialisation) until mapping finished
     late_frames: int  # released later than their time (the reader could not keep up)
     bad_frames: int  # unreadable, or rejected by the SLAM (bad depth, stamps going backwards, ...)
 
