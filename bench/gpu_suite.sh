@@ -2,13 +2,17 @@
 # The GPU suite in one device call: GPU tests, gsplat renderer benchmark, SLAM at 640x480 in lockstep
 # and at 30 Hz realtime, on the synthetic room and a TUM fr3/teddy subset. Results go under $OUT.
 #
-#   bash bench/gpu_suite.sh prepare [FRAMES] [--ros]   # here: wheels into .whl/, TUM subset into .gpu_data/
-#   bash bench/gpu_suite.sh run                        # there (the device tool), carrying .whl and .gpu_data
-#   bash bench/gpu_suite.sh smoke                      # here, on the CPU: the same steps at toy sizes
+#   bash bench/gpu_suite.sh prepare [FRAMES]   # here: wheels into .whl/, a TUM subset into .gpu_data/
+#   bash bench/gpu_suite.sh run                # there (the device tool), carrying .whl and .gpu_data
+#   bash bench/gpu_suite.sh prepare-ros        # here: the ROS 2 wheels for Python 3.12 into .whl_ros/
+#   bash bench/gpu_suite.sh ros                # there, a second call carrying .whl_ros: slam_node on CUDA
+#   bash bench/gpu_suite.sh smoke              # here, on the CPU: the same steps at toy sizes
 #
-# The device call sends the checkout plus carried folders, 64 MiB in all: the TUM subset is FRAMES
-# colour+depth pairs (default 60, ~33 MB); --ros also carries the ROS 2 wheels for Python 3.12
-# (~45 MB, then use ~20 frames) so the slam_node CUDA test runs instead of skipping. The machine
+# The device call sends the checkout plus carried folders, 64 MiB in all. .whl holds gsplat and the
+# run-time dependencies the GPU image may lack (matplotlib and its dependencies, tqdm: ~31 MB with
+# gsplat); the TUM subset is FRAMES colour+depth pairs (default 30, ~20 MB); prepare prints the
+# total. The ROS 2 wheels (~45 MB) do not fit beside them: the slam_node CUDA test, which skips in
+# `run`, has its own call (`ros`). The machine
 # allows 10 minutes per call: every step has its own time limit within the suite's 570 s, in order of
 # importance, and the suite goes on after a failure, so what finished still comes back. The figures to copy into BENCHMARKS.md are in
 # $OUT/BENCHMARKS-gpu.md (sections in the usual format, device named) and $OUT/summary.txt.
@@ -16,19 +20,34 @@ set -uo pipefail
 cd "$(dirname "$0")/.."
 mode=${1:-run}
 
+PIP_312=(python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp
+         --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64
+         --platform any)
+
+carried_mib() {  # the checkout's tracked files plus the given folders, MiB
+  local bytes
+  bytes=$(( $(du -sb "$@" | awk '{s += $1} END {print s}') + $(git ls-files -z | xargs -0 du -cb | tail -1 | cut -f1) ))
+  echo "carried with the checkout: $((bytes / 1048576)) MiB of 64"
+  [ "$bytes" -lt $((64 * 1048576)) ] || { echo "too much to carry" >&2; exit 1; }
+}
+
+prepare_ros() {
+  rm -rf .whl_ros && mkdir -p .whl_ros
+  .venv/bin/pip list --format=freeze 2>/dev/null | grep -E '^ros-' > .whl_ros/ros-requirements.txt
+  "${PIP_312[@]}" -d .whl_ros -r .whl_ros/ros-requirements.txt
+  carried_mib .whl_ros
+}
+
 prepare() {
-  local frames=${1:-60} ros=${2:-}
-  local pip=(python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp
-             --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64
-             --platform any)
+  local frames=${1:-30}
+  local pip=("${PIP_312[@]}")
   rm -rf .whl .gpu_data && mkdir -p .whl .gpu_data
   "${pip[@]}" -d .whl gsplat==1.5.3
-  if [ "$ros" = "--ros" ]; then
-    .venv/bin/pip list --format=freeze 2>/dev/null | grep -E '^ros-' > .whl/ros-requirements.txt
-    "${pip[@]}" -d .whl -r .whl/ros-requirements.txt
-  fi
+  # plots and progress bars (sgs_slam_core needs them); numpy, torch, opencv, pyyaml are in the image
+  "${pip[@]}" -d .whl matplotlib==3.11.2 contourpy cycler fonttools kiwisolver pillow pyparsing python-dateutil \
+    packaging six tqdm
   .venv/bin/python bench/tum_subset.py ../shared/data/tum_fr3_teddy .gpu_data/tum_fr3_teddy --frames "$frames"
-  du -sh .whl .gpu_data
+  carried_mib .whl .gpu_data
 }
 
 DEADLINE=$((SECONDS + ${SGS_GPU_SUITE_BUDGET_S:-570}))  # the device call's 600 s, less the copy back
@@ -49,6 +68,26 @@ step() {  # step NAME SECONDS COMMAND...: run with a time limit (and the suite's
   return 0
 }
 
+install_wheels() {  # install_wheels FOLDER: its wheels into a venv over the image's packages; PY becomes its python
+  ls "$1"/*.whl > /dev/null 2>&1 || return 0
+  # the wheels go into the venv's site-packages, where the ROS wheels' start-up hook (a .pth file)
+  # runs; a plain --target folder on PYTHONPATH would skip it
+  local site
+  site=$($PY -c 'import sys; print(f"/tmp/sgs_venv/lib/python{sys.version_info[0]}.{sys.version_info[1]}/site-packages")')
+  $PY -m venv --system-site-packages --without-pip /tmp/sgs_venv
+  $PY -m pip install -q --no-index --no-deps --target "$site" "$1"/*.whl >> "$OUT/pip.log" 2>&1
+  PY=/tmp/sgs_venv/bin/python
+}
+
+run_ros() {  # slam_node in-process on CUDA for a few frames (the ROS wheels travel alone: 45 MB)
+  : "${OUT:=$PWD/gpu_out}"
+  mkdir -p "$OUT"
+  export PYTHONPATH=$PWD ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+  : > "$OUT/summary.txt"
+  install_wheels .whl_ros
+  step ros_tests 400 $PY -m pytest -q -rs test/devices/test_cuda.py -k slam_node
+}
+
 run_suite() {
   local device=$1 scale=$2 room_frames=$3 tum_frames=$4
   : "${OUT:=$PWD/gpu_out}"
@@ -58,15 +97,7 @@ run_suite() {
   : > "$OUT/summary.txt"
   { nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo "no GPU";
     $PY -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"; } | tee -a "$OUT/summary.txt"
-  if [ "$device" = cuda ] && ls .whl/*.whl > /dev/null 2>&1; then
-    # a venv over the image's packages (torch): wheels go into its site-packages, where the ROS wheels'
-    # start-up hook (a .pth file) runs; a plain --target folder on PYTHONPATH would skip it
-    local site
-    site=$($PY -c 'import sys; print(f"/tmp/sgs_venv/lib/python{sys.version_info[0]}.{sys.version_info[1]}/site-packages")')
-    $PY -m venv --system-site-packages --without-pip /tmp/sgs_venv
-    $PY -m pip install -q --no-index --no-deps --target "$site" .whl/*.whl > "$OUT/pip.log" 2>&1
-    PY=/tmp/sgs_venv/bin/python
-  fi
+  [ "$device" = cuda ] && install_wheels .whl
   local build_pid=""
   if [ "$device" = cuda ]; then  # gsplat compiles (1-2 min) while the scene is generated
     ($PY -c "from gsplat.cuda._backend import _C" > "$OUT/gsplat_build.log" 2>&1; echo "gsplat build exit $?" >> "$OUT/gsplat_build.log") &
@@ -96,12 +127,14 @@ run_suite() {
   for run in "$OUT"/run_*; do  # keep the small files; maps and renders stay behind
     [ -d "$run" ] && find "$run" -maxdepth 1 -type f \( -name '*.sgsmap' -o -name '*.ply' \) -delete
   done
-  echo "done: see $OUT/summary.txt and $OUT/BENCHMARKS-gpu.md"
+  echo "done: see $OUT/summary.txt$([ "$device" = cuda ] && echo " and $OUT/BENCHMARKS-gpu.md")"
 }
 
 case "$mode" in
-  prepare) prepare "${2:-60}" "${3:-}" ;;
-  run) PY=${PY:-python3} run_suite cuda 1 200 "${SGS_GPU_TUM_FRAMES:-60}" ;;
+  prepare) prepare "${2:-30}" ;;
+  prepare-ros) prepare_ros ;;
+  ros) PY=${PY:-python3} run_ros ;;
+  run) PY=${PY:-python3} run_suite cuda 1 200 "${SGS_GPU_TUM_FRAMES:-30}" ;;
   smoke) PY=${PY:-.venv/bin/python} OUT=${OUT:-/tmp/gpu_suite_smoke} run_suite cpu 8 6 6 ;;
-  *) echo "usage: bash bench/gpu_suite.sh prepare [FRAMES] [--ros] | run | smoke" >&2; exit 2 ;;
+  *) echo "usage: bash bench/gpu_suite.sh prepare [FRAMES] | run | prepare-ros | ros | smoke" >&2; exit 2 ;;
 esac
