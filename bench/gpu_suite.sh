@@ -24,9 +24,11 @@ PIP_312=(python3 -m pip download -q --no-deps --only-binary=:all: --python-versi
          --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64
          --platform any)
 
+die() { echo "gpu_suite: $*" >&2; exit 1; }
+
 carried_mib() {  # the checkout's tracked files plus the given folders, MiB
   local bytes
-  bytes=$(( $(du -sb "$@" | awk '{s += $1} END {print s}') + $(git ls-files -z | xargs -0 du -cb | tail -1 | cut -f1) ))
+  bytes=$(( $(du -sb "$@" | awk '{s += $1} END {print s}') + $(git ls-files -z | xargs -0 du -b | awk '{s += $1} END {print s}') ))
   echo "carried with the checkout: $((bytes / 1048576)) MiB of 64"
   [ "$bytes" -lt $((64 * 1048576)) ] || { echo "too much to carry" >&2; exit 1; }
 }
@@ -34,7 +36,8 @@ carried_mib() {  # the checkout's tracked files plus the given folders, MiB
 prepare_ros() {
   rm -rf .whl_ros && mkdir -p .whl_ros
   .venv/bin/pip list --format=freeze 2>/dev/null | grep -E '^ros-' > .whl_ros/ros-requirements.txt
-  "${PIP_312[@]}" -d .whl_ros -r .whl_ros/ros-requirements.txt
+  [ -s .whl_ros/ros-requirements.txt ] || die "no ROS wheels in .venv (run make setup first)"
+  "${PIP_312[@]}" -d .whl_ros -r .whl_ros/ros-requirements.txt || die "downloading the ROS wheels failed"
   carried_mib .whl_ros
 }
 
@@ -42,11 +45,12 @@ prepare() {
   local frames=${1:-30}
   local pip=("${PIP_312[@]}")
   rm -rf .whl .gpu_data && mkdir -p .whl .gpu_data
-  "${pip[@]}" -d .whl gsplat==1.5.3
+  "${pip[@]}" -d .whl gsplat==1.5.3 || die "downloading gsplat failed"
   # plots and progress bars (sgs_slam_core needs them); numpy, torch, opencv, pyyaml are in the image
   "${pip[@]}" -d .whl matplotlib==3.11.2 contourpy cycler fonttools kiwisolver pillow pyparsing python-dateutil \
-    packaging six tqdm
-  .venv/bin/python bench/tum_subset.py ../shared/data/tum_fr3_teddy .gpu_data/tum_fr3_teddy --frames "$frames"
+    packaging six tqdm || die "downloading matplotlib and tqdm failed"
+  .venv/bin/python bench/tum_subset.py ../shared/data/tum_fr3_teddy .gpu_data/tum_fr3_teddy --frames "$frames" \
+    || die "making the TUM subset failed"
   carried_mib .whl .gpu_data
 }
 
@@ -70,12 +74,11 @@ step() {  # step NAME SECONDS COMMAND...: run with a time limit (and the suite's
 
 install_wheels() {  # install_wheels FOLDER: its wheels into a venv over the image's packages; PY becomes its python
   ls "$1"/*.whl > /dev/null 2>&1 || return 0
-  # the wheels go into the venv's site-packages, where the ROS wheels' start-up hook (a .pth file)
-  # runs; a plain --target folder on PYTHONPATH would skip it
-  local site
-  site=$($PY -c 'import sys; print(f"/tmp/sgs_venv/lib/python{sys.version_info[0]}.{sys.version_info[1]}/site-packages")')
+  # installed by the venv's python (running the image's pip), so every part of a wheel lands in the
+  # venv's scheme: the ROS wheels' start-up hook (a .pth file) in site-packages, their shared
+  # libraries in <venv>/lib (pip --target drops those, and rclpy then does not import)
   $PY -m venv --system-site-packages --without-pip /tmp/sgs_venv
-  $PY -m pip install -q --no-index --no-deps --target "$site" "$1"/*.whl >> "$OUT/pip.log" 2>&1
+  /tmp/sgs_venv/bin/python -m pip install -q --no-index --no-deps "$1"/*.whl >> "$OUT/pip.log" 2>&1
   PY=/tmp/sgs_venv/bin/python
 }
 

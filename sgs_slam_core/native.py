@@ -15,6 +15,7 @@ import hashlib
 import logging
 import os
 import platform
+import threading
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import ModuleType
@@ -55,6 +56,7 @@ class NativeExtension:
         self.stem, self.source, self.what = stem, source, what
         self._module: ModuleType | None = None
         self._error: str | None = None
+        self._lock = threading.Lock()  # the ROS nodes' threads may ask for the module at once
 
     def cache_name(self, extra_cflags: tuple[str, ...] = ()) -> str:
         """The build's name under ``TORCH_EXTENSIONS_DIR``: stem and a fingerprint of what it depends on."""
@@ -73,12 +75,19 @@ class NativeExtension:
 
         try:
             name = self.cache_name()
-        except BackendUnavailableError:  # no source to build from: module() says so
+            # torch makes the directory: a read-only cache raises here, and module() reports it
+            return (Path(_get_build_directory(name, verbose=False)) / f"{name}.so").is_file()
+        except (BackendUnavailableError, OSError):  # no source or no cache to build in: module() says so
             return False
-        return (Path(_get_build_directory(name, verbose=False)) / f"{name}.so").is_file()
 
     def module(self) -> ModuleType:
         """The compiled module, building it on first call; raises :class:`BackendUnavailableError`."""
+        if self._module is not None:
+            return self._module
+        with self._lock:
+            return self._load_once()
+
+    def _load_once(self) -> ModuleType:
         if self._module is not None:
             return self._module
         if self._error is not None:
@@ -89,9 +98,10 @@ class NativeExtension:
         try:
             self._module = self._build(self.cache_name(), ())
         except Exception as err:
+            first_line = next(iter(str(err).splitlines()), "")[:300]
             self._error = (
-                f"cannot build {self.what} ({type(err).__name__}: {str(err).splitlines()[0][:300]}); "
-                "it needs g++ and ninja (pip install ninja); falling back to the PyTorch reference"
+                f"cannot build {self.what} ({type(err).__name__}: {first_line}); it needs g++, ninja "
+                "(pip install ninja) and a writable TORCH_EXTENSIONS_DIR; falling back to the PyTorch reference"
             )
             raise BackendUnavailableError(self._error) from err
         return self._module

@@ -82,8 +82,9 @@ class MappingNode(Node):
         self._poses: OrderedDict[int, np.ndarray] = OrderedDict()  # and poses waiting for their frame
         self._pair_lock = threading.Lock()
         if pipeline is None:
-            pipeline = SlamPipeline(Slam(slam_config(self.params)), self.params["lockstep"], track=False, map=True,
-                                    log=self.get_logger().error)  # fmt: skip
+            slam = Slam(slam_config(self.params))
+            slam.prepare(self.get_logger().info)  # compile the CPU kernels now, not inside the first frame
+            pipeline = SlamPipeline(slam, self.params["lockstep"], track=False, map=True, log=self.get_logger().error)
             self._subscribe_inputs()
         self.pipeline = pipeline
         pipeline.map_listeners.append(self._on_mapped)

@@ -71,6 +71,7 @@ class TrackingNode(Node):
         self._last_pose_sent = time.monotonic()
         self.reset_listeners: list[Callable[[], None]] = []  # e.g. the composed mapping node's outputs
         slam = Slam(slam_config(self.params))
+        slam.prepare(self.get_logger().info)  # compile the CPU kernels now, not inside the first frame
         log = self.get_logger().error
         if standalone:
             if self.params["map_source"] != "topic":

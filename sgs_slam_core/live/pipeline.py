@@ -4,8 +4,8 @@ The one place where the SLAM's concurrency lives; the ROS nodes and ``sgs-slam r
 both drive it. Callers only hand over frames; the work happens on two worker threads.
 
 - **Live** (default): a queue of one, as a live camera's. A frame that arrives while an older one
-  still waits for the tracker replaces it (counted in ``frames_dropped``); mapping jobs likewise
-  (``jobs_dropped``). Tracking of new frames overlaps with mapping of older ones; the map object is
+  still waits for the tracker replaces it (counted in ``stats.dropped_frames``); mapping jobs
+  likewise (``stats.dropped_jobs``). Tracking of new frames overlaps with mapping of older ones; the map object is
   immutable and replaced whole, so the tracker always renders one consistent map version.
 - **Lockstep**: every frame is kept and frame t is tracked only after frame t-1 is mapped (or, with
   a separate mapping process, after ``ready_to_track`` says its map has arrived).
@@ -37,6 +37,10 @@ from sgs_slam_core.frame import Frame
 from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
 
 __all__ = ["MapJob", "PipelineStats", "SlamPipeline"]
+
+
+class _StoppingError(Exception):
+    """Raised between mapping steps once the pipeline shuts down (the step in progress is abandoned)."""
 
 
 @dataclass
@@ -149,8 +153,12 @@ class SlamPipeline:
         return self.ready_to_track is None or self.ready_to_track(self.slam.frames_processed)
 
     def _track_wait_s(self) -> float:
-        """How long the tracker sleeps before it looks again (mapping's turn ends on a clock, not an event)."""
-        return min(0.5, max(0.001, self._map_turn_until - time.monotonic()))
+        """Seconds the tracker sleeps before it looks again.
+
+        Until mapping's turn ends (a clock, not an event), else 0.5 s (every other change notifies).
+        """
+        remaining = self._map_turn_until - time.monotonic()
+        return min(0.5, max(0.001, remaining)) if remaining > 0 else 0.5
 
     def _track_loop(self) -> None:
         while True:
@@ -167,7 +175,6 @@ class SlamPipeline:
             try:
                 outcome = self.slam.track(frame)
             except Exception as err:
-                self.stats.tracking_errors += 1
                 self._error("tracking", err)
                 outcome = None
             with self._cv:
@@ -199,9 +206,10 @@ class SlamPipeline:
             try:
                 with self._on_map_stream():
                     tracked = job.tracked or self.slam.register(job.frame, job.c2w)
-                    result = self.slam.map(job.frame, tracked, self._map_turn if self._share_cpu else None)
+                    result = self.slam.map(job.frame, tracked, self._between_map_steps)
+            except _StoppingError:
+                pass  # shutting down: this frame's mapping is abandoned, the map keeps its last version
             except Exception as err:
-                self.stats.mapping_errors += 1
                 self._error("mapping", err)
             with self._cv:
                 self._busy["map"] = False
@@ -210,17 +218,23 @@ class SlamPipeline:
             if result is not None and tracked is not None:
                 self._notify("publishing the map", self.map_listeners, job.frame, tracked, result)
 
-    def _map_turn(self) -> None:
-        """Between mapping steps (live, CPU): go on during mapping's turn, else wait while tracking has work."""
+    def _between_map_steps(self) -> None:
+        """Before each mapping step: raise when shutting down.
+
+        Live on the CPU, mapping goes on during its turn, else waits while tracking has work.
+        """
         with self._cv:
-            self._cv.wait_for(
-                lambda: (
-                    not self._running
-                    or time.monotonic() < self._map_turn_until
-                    or not (self._busy["track"] or (self._frames and self._can_track()))
-                ),
-                timeout=10.0,
-            )
+            if self._share_cpu:
+                self._cv.wait_for(
+                    lambda: (
+                        not self._running
+                        or time.monotonic() < self._map_turn_until
+                        or not (self._busy["track"] or (self._frames and self._can_track()))
+                    ),
+                    timeout=10.0,
+                )
+            if not self._running:
+                raise _StoppingError
 
     @contextlib.contextmanager
     def _on_map_stream(self) -> Iterator[None]:
@@ -242,8 +256,11 @@ class SlamPipeline:
                 self._error(stage, err)
 
     def _error(self, stage: str, err: Exception) -> None:
-        self.stats.errors += 1
-        self.stats.last_error = f"{stage}: {type(err).__name__}: {err}"
+        with self._cv:  # both workers count here
+            self.stats.errors += 1
+            self.stats.tracking_errors += int(stage == "tracking")
+            self.stats.mapping_errors += int(stage == "mapping")
+            self.stats.last_error = f"{stage}: {type(err).__name__}: {err}"
         detail = "" if isinstance(err, SgsSlamError) else "\n" + traceback.format_exc()
         self.log(f"{stage} failed on a frame, which is skipped: {err}{detail}")
 
@@ -293,7 +310,8 @@ class SlamPipeline:
     def shutdown(self, timeout: float = 120.0) -> None:
         """Stop the worker threads, waiting up to ``timeout`` s for the step each is in.
 
-        A worker left running while the interpreter exits can abort the process.
+        Mapping stops at its next iteration; a frame being tracked is finished. A worker left
+        running while the interpreter exits can abort the process.
         """
         with self._cv:
             self._running = False

@@ -17,12 +17,12 @@ import queue
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from sgs_slam_core.datasets.base import Dataset
-from sgs_slam_core.errors import DatasetError
+from sgs_slam_core.errors import DatasetError, FrameError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.slam.system import MapOutcome, Slam, StepResult, TrackOutcome
@@ -102,7 +102,9 @@ class _Replay:
 
     def __init__(self, slam: Slam, dataset: Dataset, on_tracked: Callable[[Frame, StepResult], None] | None) -> None:
         self.slam, self.dataset, self.on_tracked = slam, dataset, on_tracked
-        self.tracked: dict[int, tuple[Frame, TrackOutcome]] = {}  # by dataset index
+        # by dataset index: ground truth c2w [4, 4] (or None) and the outcome without its frame tensors
+        # (the mapper still has those; kept here they would add a frame's images per tracked frame)
+        self.tracked: dict[int, tuple[np.ndarray | None, TrackOutcome]] = {}
         self.mapped: dict[int, MapOutcome] = {}
         self.news: queue.SimpleQueue[tuple[Frame, TrackOutcome]] = queue.SimpleQueue()  # not yet reported
         self.errors: list[str] = []
@@ -112,7 +114,7 @@ class _Replay:
 
     def on_pose(self, frame: Frame, outcome: TrackOutcome) -> None:  # tracking thread
         with self.lock:
-            self.tracked[frame.index] = (frame, outcome)
+            self.tracked[frame.index] = (frame.gt_c2w, replace(outcome, frame_data=None))
         self.news.put((frame, outcome))
 
     def on_map(self, frame: Frame, outcome: TrackOutcome, result: MapOutcome) -> None:  # mapping thread
@@ -120,7 +122,7 @@ class _Replay:
             self.mapped[frame.index] = result
 
     def on_error(self, line: str) -> None:
-        self.errors.append(line)
+        self.errors.append(next(iter(line.splitlines()), ""))  # the message; a traceback only in the log
         log.warning(line)
 
     def report(self) -> None:
@@ -133,7 +135,7 @@ class _Replay:
         """Frame ``i``, or None (counted, logged) when it cannot be read."""
         try:
             return self.dataset[i]
-        except DatasetError as err:
+        except (DatasetError, FrameError) as err:
             self.unreadable += 1
             self.first_skip = self.first_skip or f"frame {i}: {err}"
             log.warning("frame %d skipped: %s", i, err)
@@ -173,19 +175,20 @@ class _Replay:
         result = RealtimeResult(self._stats(pipeline, times, hz, wall_s), interrupted=interrupted,
                                 first_skip=self.first_skip or (self.errors[0] if self.errors else ""))  # fmt: skip
         for index in sorted(self.tracked):
-            frame, outcome = self.tracked[index]
+            gt_c2w, outcome = self.tracked[index]
             result.steps.append(_step(outcome, self.mapped.get(index), self.slam.num_gaussians))
             result.dataset_indices.append(index)
-            result.gt_c2w.append(frame.gt_c2w)
+            result.gt_c2w.append(gt_c2w)
         return result
 
     def _stats(self, pipeline: SlamPipeline, times: np.ndarray, hz: float | None, wall_s: float) -> RealtimeStats:
         st = pipeline.stats
+        mapped = sum(m.mapping is not None for m in self.mapped.values())  # optimised, as in lockstep
         duration = float(times[-1]) if len(times) > 1 else 0.0
         rate = (len(times) - 1) / duration if duration > 0 else float(hz or 0.0)
         return RealtimeStats(
             frames_in=st.frames_in + self.unreadable, frames_tracked=len(self.tracked),
-            frames_dropped=st.frames_in - len(self.tracked) - st.tracking_errors, frames_mapped=len(self.mapped),
+            frames_dropped=st.frames_in - len(self.tracked) - st.tracking_errors, frames_mapped=mapped,
             realtime_hz=rate, wall_s=wall_s, late_frames=self.late, bad_frames=self.unreadable + st.tracking_errors,
         )  # fmt: skip
 

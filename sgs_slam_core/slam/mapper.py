@@ -18,7 +18,7 @@ from sgs_slam_core.slam.losses import mapping_loss
 from sgs_slam_core.slam.optimizer import GaussianOptimizer
 from sgs_slam_core.slam.settings import MappingSettings
 
-__all__ = ["MapResult", "WindowFrame", "map_window", "prune_mask"]
+__all__ = ["MapResult", "MapStats", "WindowFrame", "map_window", "prune_mask"]
 
 
 @dataclass
@@ -31,14 +31,21 @@ class WindowFrame:
 
 
 @dataclass(frozen=True)
-class MapResult:
-    """The optimised map and what mapping did."""
+class MapStats:
+    """What one mapping window did (kept per frame, without the map: a run keeps one map version)."""
 
-    gaussians: GaussianMap
     iterations: int
     pruned: int
     time_s: float
     last_loss: float
+
+
+@dataclass(frozen=True)
+class MapResult:
+    """The optimised map and what mapping did."""
+
+    gaussians: GaussianMap
+    stats: MapStats
 
 
 def prune_mask(gaussians: GaussianMap, opacity: float, max_scale: float) -> torch.Tensor:  # [N] bool, True = keep
@@ -86,4 +93,4 @@ def map_window(
             with record_function("map.prune"):
                 pruned += opt.prune(prune_mask(opt.gaussians(), s.prune_opacity, s.prune_scale_ratio * scene_radius))
     last = float(loss.detach()) if s.iterations else last  # one host sync per window, not per iteration
-    return MapResult(opt.result(), s.iterations, pruned, time.perf_counter() - t0, last)
+    return MapResult(opt.result(), MapStats(s.iterations, pruned, time.perf_counter() - t0, last))

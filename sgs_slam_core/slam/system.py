@@ -31,7 +31,7 @@ from sgs_slam_core.slam.edits import EditLocks
 from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors, resize_arrays
 from sgs_slam_core.slam.guard import TrackingGuard
 from sgs_slam_core.slam.keyframes import Window, is_keyframe, select_window
-from sgs_slam_core.slam.mapper import MapResult, WindowFrame, map_window
+from sgs_slam_core.slam.mapper import MapResult, MapStats, WindowFrame, map_window
 from sgs_slam_core.slam.pose import predict_constant_velocity
 from sgs_slam_core.slam.tracker import TrackResult, track
 
@@ -69,7 +69,7 @@ class TrackOutcome:
 class MapOutcome:
     """What mapping did with one frame."""
 
-    mapping: MapResult | None
+    mapping: MapStats | None  # None when not mapped (the map itself is the Slam's, not kept per frame)
     window: Window | None
     keyframe: bool
     added: int
@@ -85,7 +85,7 @@ class StepResult:
     stamp_ns: int
     c2w: np.ndarray  # [4, 4] estimated camera-to-world pose (map frame)
     tracking: TrackResult | None  # None for the first frame (and with use_gt_pose)
-    mapping: MapResult | None  # None when not mapped (failure, or not a mapping frame)
+    mapping: MapStats | None  # None when not mapped (failure, or not a mapping frame)
     window: Window | None
     keyframe: bool
     added: int  # Gaussians added by initialisation / densification
@@ -256,8 +256,9 @@ class Slam:
             with record_function("keyframe_selection"):
                 window = self._select_window(data, c2w, frame.labels, index)
             timings["keyframe_selection"] = time.perf_counter() - t_sel
-            mapping = self._map(data, c2w, window, use_sem, between_iterations)
-            self._set_gaussians(mapping.gaussians)
+            result = self._map(data, c2w, window, use_sem, between_iterations)
+            self._set_gaussians(result.gaussians)
+            mapping = result.stats
         if self.config.mapping.refresh_labels and use_sem:
             self._refresh_labels()
         keyframe = is_keyframe(index, self.config.keyframes.every, self.keyframes[-1].index if self.keyframes else None)

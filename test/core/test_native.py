@@ -27,6 +27,21 @@ def test_a_disabled_build_explains_itself(tmp_path, monkeypatch):
     assert not ext.is_available() and "SGS_SLAM_NO_CPP" in ext.unavailable_reason()
 
 
+def test_a_cache_that_cannot_be_written_falls_back_with_a_reason(tmp_path, monkeypatch):
+    """A read-only or broken TORCH_EXTENSIONS_DIR must not crash the run: the reference takes over."""
+    blocker = tmp_path / "not_a_folder"
+    blocker.write_text("")
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(blocker / "ext"))
+    monkeypatch.delenv("SGS_SLAM_NO_CPP", raising=False)
+    src = tmp_path / "k.cpp"
+    src.write_text("// cannot be built here\n")
+    ext = NativeExtension("k", src, "a kernel")
+    assert not ext.is_cached()
+    assert not ext.is_available()
+    assert "cannot build a kernel" in ext.unavailable_reason()
+    assert "TORCH_EXTENSIONS_DIR" in ext.unavailable_reason()
+
+
 @pytest.mark.skipif(shutil.which("g++") is None or bool(os.environ.get("SGS_SLAM_NO_CPP")), reason="no C++ compiler")
 def test_the_kernels_build_where_there_is_a_compiler():
     """The compiled tests skip when a build fails (a laptop without g++); here a failed build is a failure."""

@@ -15,8 +15,8 @@ from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.metrics import read_tum_trajectory
-from sgs_slam_core.runner.realtime import release_times, run_realtime
-from sgs_slam_core.slam.system import Slam
+from sgs_slam_core.runner.realtime import _Replay, release_times, run_realtime
+from sgs_slam_core.slam.system import Slam, TrackOutcome
 
 from ..conftest import FAST_SLAM
 
@@ -103,6 +103,53 @@ def test_live_on_the_cpu_mapping_steps_never_start_while_a_frame_is_tracked():
         pipeline.shutdown()
 
 
+class SlowMappingSlam(GatedSlam):
+    """Mapping runs 400 steps of 10 ms (4 s) unless the pipeline stops it between steps."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.steps = 0
+
+    def track(self, frame):
+        self.frames_processed += 1
+        return SimpleNamespace(failed=False, index=frame.index)
+
+    def map(self, frame, tracked, between_iterations=None):
+        for _ in range(400):
+            if between_iterations is not None:
+                between_iterations()
+            self.steps += 1
+            time.sleep(0.01)
+        return SimpleNamespace()
+
+
+@pytest.mark.parametrize("lockstep", [False, True])
+def test_shutdown_stops_mapping_at_its_next_step(lockstep):
+    """A second Ctrl-C must not wait for a whole mapping window (minutes at 640x480 on a CPU)."""
+    slam = SlowMappingSlam()
+    pipeline = SlamPipeline(slam, lockstep=lockstep, log=lambda _: None)
+    pipeline.submit_frame(SimpleNamespace(index=0))
+    deadline = time.monotonic() + 5
+    while slam.steps < 3 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    started = time.monotonic()
+    pipeline.shutdown(timeout=10.0)
+    assert time.monotonic() - started < 2.0 and slam.steps < 200
+    assert not any(t.is_alive() for t in pipeline._threads)
+    assert pipeline.stats.mapping_errors == 0 and pipeline.stats.mapped == 0  # abandoned, not failed
+
+
+def test_an_idle_tracker_sleeps():
+    """With nothing to do, the tracking thread wakes a few times a second, not every millisecond."""
+    pipeline = SlamPipeline(GatedSlam(), lockstep=True, log=lambda _: None)
+    try:
+        assert pipeline._track_wait_s() == 0.5
+        pipeline._map_turn_until = time.monotonic() + 0.1  # mapping's turn: look again when it ends
+        assert 0.05 < pipeline._track_wait_s() <= 0.1
+    finally:
+        pipeline.shutdown()
+
+
 def test_lockstep_keeps_every_frame_in_order():
     slam = GatedSlam()
     pipeline = SlamPipeline(slam, lockstep=True, log=lambda _: None)
@@ -136,6 +183,18 @@ def test_realtime_replay_accounts_for_every_frame(tiny_scene):
     assert result.dataset_indices[0] == 0 and result.dataset_indices == sorted(result.dataset_indices)
     assert st.realtime_hz == pytest.approx(100.0)
     assert all(np.isfinite(s.c2w).all() for s in result.steps)
+
+
+def test_a_replay_keeps_poses_not_frames():
+    """A long replay must not hold every tracked frame's images (GBs at 640x480 over a sequence)."""
+    replay = _Replay(slam=None, dataset=None, on_tracked=None)
+    gt = np.eye(4)
+    frame = SimpleNamespace(index=7, gt_c2w=gt)
+    outcome = TrackOutcome(7, 0, np.eye(4), None, None, 0.01, frame_data=object())
+    replay.on_pose(frame, outcome)
+    kept_gt, kept = replay.tracked[7]
+    assert kept_gt is gt and kept.frame_data is None and kept.c2w is outcome.c2w
+    assert outcome.frame_data is not None  # the mapper still gets the tensors
 
 
 def test_cli_realtime_writes_the_counts(tiny_scene, tmp_path):

@@ -1,6 +1,8 @@
 """The Slam facade on the tiny synthetic scene: accuracy bounds, switches, failure handling."""
 
 import dataclasses
+import gc
+import weakref
 
 import numpy as np
 import pytest
@@ -79,6 +81,17 @@ def test_keyframe_switches_reach_the_window(tiny):
     assert w_off.after_semantic == w_off.after_geometric
     assert len(set(w_off.weights)) == 1 and len(set(w_on.weights)) > 1  # U(t) only when switched on
     assert w_on.weights[-1] < w_on.weights[0]  # later frames weigh less
+
+
+def test_a_run_keeps_one_map_version(tiny):
+    """Per-frame results hold what mapping did, not the map it made (a version per frame is GBs)."""
+    slam = Slam(load_config("synthetic", overrides=FAST_SLAM), tiny.label_table)
+    steps = [slam.process(tiny[i]) for i in range(3)]
+    old = weakref.ref(slam.gaussians.means)
+    steps += [slam.process(tiny[i]) for i in range(3, 5)]
+    gc.collect()
+    assert all(s.mapping is not None for s in steps)
+    assert old() is None, "an old map version is still referenced"
 
 
 def test_frames_without_labels_still_work(tiny):
