@@ -234,7 +234,7 @@ def test_bag_player_lockstep_drives_slam_node(tiny_scene, tmp_path):
     from sgs_slam_ros.bag_player import BagPlayer
     from sgs_slam_ros.slam_node import build_slam_nodes
 
-    from ..ros.helpers import Spinner, new_context, node_params, wait_for
+    from ..ros.helpers import Spinner, new_context, node_params, shut_down, wait_for
 
     bag = tmp_path / "bag"
     convert(open_dataset(tiny_scene), bag)
@@ -256,8 +256,4 @@ def test_bag_player_lockstep_drives_slam_node(tiny_scene, tmp_path):
         assert nodes[1].pipeline.stats.mapped == 12  # every frame processed, in order
         assert [stamp_to_ns(p.header.stamp) for p in poses] == sorted(stamp_to_ns(p.header.stamp) for p in poses)
     finally:
-        spinner.stop()
-        for n in [*nodes, player]:
-            getattr(n, "close", lambda: None)()
-            n.destroy_node()
-        ctx.try_shutdown()
+        shut_down(ctx, [*nodes, player], spinner)

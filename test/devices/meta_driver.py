@@ -54,7 +54,7 @@ def nodes(scene: Path, work: Path) -> Callable[[], None]:
 
         from sgs_slam_core.datasets import open_dataset
         from sgs_slam_ros.slam_node import build_slam_nodes
-        from test.ros.helpers import Feeder, Spinner, new_context, node_params, wait_for
+        from test.ros.helpers import Feeder, Spinner, new_context, node_params, shut_down, wait_for
 
         ds = open_dataset(scene)
         frames = [dataclasses.replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32))
@@ -82,11 +82,7 @@ def nodes(scene: Path, work: Path) -> Callable[[], None]:
             if not response.success:
                 raise RuntimeError(response.message)
         finally:
-            spinner.stop()
-            for n in [*built, feeder]:
-                getattr(n, "close", lambda: None)()
-                n.destroy_node()
-            ctx.try_shutdown()
+            shut_down(ctx, [*built, feeder], spinner)
 
     return step
 

@@ -41,7 +41,7 @@ def test_slam_node_on_cuda(tiny_scene, tmp_path):
     pytest.importorskip("rclpy", reason="the ROS 2 wheels are not installed")
     from sgs_slam_ros.slam_node import build_slam_nodes
 
-    from ..ros.helpers import Feeder, Spinner, new_context, node_params, wait_for
+    from ..ros.helpers import Feeder, Spinner, new_context, node_params, shut_down, wait_for
 
     ds = open_dataset(tiny_scene)
     frames = [dataclasses.replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32))
@@ -62,8 +62,4 @@ def test_slam_node_on_cuda(tiny_scene, tmp_path):
         assert nodes[1].pipeline.wait_idle(30.0) and nodes[1].pipeline.stats.errors == 0
         assert nodes[1].pipeline.slam.gaussians.means.is_cuda
     finally:
-        spinner.stop()
-        for n in [*nodes, feeder]:
-            getattr(n, "close", lambda: None)()
-            n.destroy_node()
-        ctx.try_shutdown()
+        shut_down(ctx, [*nodes, feeder], spinner)

@@ -18,7 +18,7 @@ from sgs_slam_core.datasets import open_dataset
 from sgs_slam_ros.messages import camera_info_msg, header, image_msg
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from ..ros.helpers import FAST, Feeder, Spinner, new_context, node_params, wait_for
+from ..ros.helpers import FAST, Feeder, Spinner, new_context, node_params, shut_down, wait_for
 
 pytestmark = pytest.mark.ros
 CAM = "camera_color_optical_frame"
@@ -50,12 +50,7 @@ def start(tmp_path, **params):
 
 
 def stop(ctx, nodes, feeder, spinner):
-    spinner.stop()
-    for n in [*nodes, feeder]:
-        if hasattr(n, "close"):
-            n.close()
-        n.destroy_node()
-    ctx.try_shutdown()
+    shut_down(ctx, [*nodes, feeder], spinner)
 
 
 def latest_values(diags, node="tracking_node"):

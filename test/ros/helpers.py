@@ -121,3 +121,13 @@ class Feeder(Node):
         self.pubs["/depth/image"].publish(image_msg(depth, depth_encoding, stamp, cam))
         if semantic:
             self.pubs["/semantic/image"].publish(image_msg(frame.labels.astype("uint16"), "16UC1", stamp, cam))
+
+
+def shut_down(ctx: Context, nodes: list, spinner: Spinner | None = None) -> None:
+    """Stop the spinner, close (where they can) and destroy ``nodes``, and shut ``ctx`` down."""
+    if spinner is not None:
+        spinner.stop()
+    for n in nodes:
+        getattr(n, "close", lambda: None)()
+        n.destroy_node()
+    ctx.try_shutdown()

@@ -8,7 +8,7 @@ from msg_adapters import stamp_to_ns
 from sgs_slam_ros.qos import latched_qos
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, tiny_frames, wait_for
+from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, tiny_frames, wait_for
 
 pytestmark = pytest.mark.ros
 CAM = "rig_color_optical_frame"
@@ -33,11 +33,7 @@ def start():
 
     yield _start
     for ctx, spinner, nodes in started:
-        spinner.stop()
-        for n in nodes:
-            getattr(n, "close", lambda: None)()
-            n.destroy_node()
-        ctx.try_shutdown()
+        shut_down(ctx, nodes, spinner)
 
 
 def play(feeder, frames):

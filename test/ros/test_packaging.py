@@ -13,7 +13,7 @@ from catkin_pkg.package import parse_package
 
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import new_context
+from .helpers import new_context, shut_down
 
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[2]
@@ -120,10 +120,7 @@ def test_the_rviz_view_shows_what_slam_node_publishes():
             assert topic in published, topic
             assert durability.replace(" ", "_").upper() == published[topic], topic  # latched where we latch
     finally:
-        for n in nodes:
-            n.close() if hasattr(n, "close") else None
-            n.destroy_node()
-        ctx.try_shutdown()
+        shut_down(ctx, nodes)
 
 
 def test_realsense_params_file_configures_both_nodes():
@@ -140,7 +137,4 @@ def test_realsense_params_file_configures_both_nodes():
         subscribed = {s.topic_name for s in tracking.subscriptions}
         assert "/rgb/image" in subscribed and "/semantic/image" not in subscribed
     finally:
-        for n in nodes:
-            n.close() if hasattr(n, "close") else None
-            n.destroy_node()
-        ctx.try_shutdown()
+        shut_down(ctx, nodes)

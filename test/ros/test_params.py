@@ -15,7 +15,7 @@ from sensor_msgs.msg import Image
 from sgs_slam_ros.params import COMMON, EDIT, MAPPING, TRACKING
 from sgs_slam_ros.slam_node import build_slam_nodes, main
 
-from .helpers import Feeder, Spinner, new_context, node_params, tiny_frames, wait_for
+from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames, wait_for
 
 pytestmark = pytest.mark.ros
 
@@ -28,11 +28,7 @@ def system():
     spinner = Spinner(ctx, [*nodes, feeder])
     assert wait_for(feeder.connected, 10.0)
     yield nodes, feeder
-    spinner.stop()
-    for n in [*nodes, feeder]:
-        getattr(n, "close", lambda: None)()
-        n.destroy_node()
-    ctx.try_shutdown()
+    shut_down(ctx, [*nodes, feeder], spinner)
 
 
 def done(future, timeout=10.0):

@@ -14,7 +14,7 @@ from sgs_slam_core.datasets import open_dataset
 from sgs_slam_ros.bag_player import RESET_SERVICES, BagPlayer
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Spinner, diagnostics_of, new_context, node_params, wait_for
+from .helpers import Spinner, diagnostics_of, new_context, node_params, shut_down, wait_for
 
 pytestmark = pytest.mark.ros
 
@@ -37,11 +37,7 @@ def start(ctx, **params):
 
 
 def stop(spinner, ctx, nodes):
-    spinner.stop()
-    for n in nodes:
-        getattr(n, "close", lambda: None)()
-        n.destroy_node()
-    ctx.try_shutdown()
+    shut_down(ctx, nodes, spinner)
 
 
 def test_live_replay_counts_add_up_in_diagnostics(tiny_bag):

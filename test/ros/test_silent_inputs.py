@@ -10,7 +10,7 @@ from rclpy.parameter import Parameter
 
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, tiny_frames, wait_for
+from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, tiny_frames, wait_for
 
 pytestmark = pytest.mark.ros
 OK, WARN = 0, 1
@@ -52,8 +52,4 @@ def test_missing_label_topic_is_reported_once_and_clears(tiny_scene):
         assert wait_for(lambda: diagnostics_of(diag, "tracking_node")[-1][0] == OK, 5.0)
         assert diagnostics_of(diag, "tracking_node")[-1][2]["silent_inputs"] == "none"
     finally:
-        spinner.stop()
-        for n in [*nodes, feeder]:
-            getattr(n, "close", lambda: None)()
-            n.destroy_node()
-        ctx.try_shutdown()
+        shut_down(ctx, [*nodes, feeder], spinner)

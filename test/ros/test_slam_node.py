@@ -13,7 +13,7 @@ from msg_adapters import image_to_numpy, pointcloud_to_numpy, pose_to_c2w
 from sgs_slam_core.metrics import ate
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Feeder, Spinner, new_context, node_params, tiny_frames, wait_for
+from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames, wait_for
 
 pytestmark = pytest.mark.ros
 
@@ -37,12 +37,7 @@ def system(tmp_path):
     spinner = Spinner(ctx, [*nodes, feeder])
     assert wait_for(feeder.connected, 10.0), "slam_node did not subscribe"
     yield nodes, feeder, received
-    spinner.stop()
-    for n in [*nodes, feeder]:
-        if hasattr(n, "close"):
-            n.close()
-        n.destroy_node()
-    ctx.try_shutdown()
+    shut_down(ctx, [*nodes, feeder], spinner)
 
 
 def call(node, srv_type, name, request, timeout=30.0):

@@ -11,7 +11,7 @@ from sgs_slam_core.geometry.gravity import pose_from_xyz_rpy
 from sgs_slam_ros.slam_node import build_slam_nodes
 from sgs_slam_ros.tf import TF_QOS, TF_STATIC_QOS
 
-from .helpers import Feeder, Spinner, new_context, node_params, tiny_frames, wait_for
+from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames, wait_for
 
 pytestmark = pytest.mark.ros
 
@@ -61,11 +61,7 @@ def replay(tiny_scene, count, **params):
         poses = {stamp: pose_to_c2w(msg) for stamp, msg in feeder.poses.items()}
         return frames, poses, tf, static
     finally:
-        spinner.stop()
-        for n in [*nodes, feeder]:
-            getattr(n, "close", lambda: None)()
-            n.destroy_node()
-        ctx.try_shutdown()
+        shut_down(ctx, [*nodes, feeder], spinner)
 
 
 def test_tf_map_to_camera_matches_every_pose_in_a_levelled_map(tiny_scene):
