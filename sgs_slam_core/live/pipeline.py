@@ -178,7 +178,6 @@ class SlamPipeline:
                 self._error("tracking", err)
                 outcome = None
             with self._cv:
-                self._busy["track"] = False
                 if self._share_cpu:  # mapping's turn: as long as this frame's tracking took
                     self._map_turn_until = time.monotonic() + self._map_share * (time.monotonic() - started)
                 if outcome is not None:
@@ -186,11 +185,13 @@ class SlamPipeline:
                     self.stats.tracking_failures += int(outcome.failed)
                     self.stats.latency_s.append(time.monotonic() - received_at)
                 self._cv.notify_all()
-            if outcome is None:
-                continue
-            self._notify("publishing a pose", self.pose_listeners, frame, outcome)
-            if self.map_enabled:
-                self.submit_job(MapJob(frame, outcome))
+            if outcome is not None:  # still busy: a reset or an exclusive section waits for the hand-over
+                self._notify("publishing a pose", self.pose_listeners, frame, outcome)
+                if self.map_enabled:
+                    self.submit_job(MapJob(frame, outcome))
+            with self._cv:
+                self._busy["track"] = False
+                self._cv.notify_all()
 
     def _map_loop(self) -> None:
         while True:
@@ -294,6 +295,7 @@ class SlamPipeline:
             self._jobs.clear()
             if not self._cv.wait_for(lambda: not any(self._busy.values()), timeout=timeout):
                 return False
+            self._jobs.clear()  # handed over by a frame tracked before the reset
             self.slam.reset()
             self._cv.notify_all()
         return True

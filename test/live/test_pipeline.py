@@ -150,6 +150,32 @@ def test_an_idle_tracker_sleeps():
         pipeline.shutdown()
 
 
+def test_a_reset_never_maps_a_frame_tracked_before_it():
+    """The reset waits until the tracked frame is handed over, then drops its mapping job."""
+    slam = GatedSlam()
+    slam.mapped, slam.resets = [], 0
+    slam.map = lambda frame, tracked, between_iterations=None: slam.mapped.append((slam.resets, frame.index))
+    slam.reset = lambda: setattr(slam, "resets", slam.resets + 1)
+    pipeline = SlamPipeline(slam, lockstep=False, log=lambda _: None)
+    publishing, release = threading.Event(), threading.Event()
+    pipeline.pose_listeners.append(lambda frame, outcome: (publishing.set(), release.wait(5.0)))
+    try:
+        pipeline.submit_frame(SimpleNamespace(index=0))
+        slam.gate.release()
+        assert publishing.wait(5.0)  # frame 0 is tracked; its pose is being published
+        resetter = threading.Thread(target=pipeline.reset)
+        resetter.start()
+        time.sleep(0.2)
+        assert slam.resets == 0  # the reset waits for the hand-over
+        release.set()
+        resetter.join(5.0)
+        assert slam.resets == 1 and pipeline.wait_idle(5.0)
+        assert (1, 0) not in slam.mapped  # frame 0 was not mapped into the fresh map
+    finally:
+        release.set()
+        pipeline.shutdown()
+
+
 def test_lockstep_keeps_every_frame_in_order():
     slam = GatedSlam()
     pipeline = SlamPipeline(slam, lockstep=True, log=lambda _: None)
