@@ -16,10 +16,11 @@ import os
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import cv2
 import numpy as np
+import yaml
 
 from sgs_slam_core.errors import DatasetError, OutputError, SgsSlamError
 
@@ -140,6 +141,15 @@ def read_text(
     if nul >= 0:
         raise error(f"{what} {path} is a binary file (byte {nul} is NUL), expected text")
     return data.decode("utf-8", errors=TEXT_ERRORS)
+
+
+def read_yaml(path: str | Path, what: str, error: type[SgsSlamError] = DatasetError) -> Any:
+    """A user YAML file (read as :func:`read_text`, parsed safely); invalid YAML raises ``error`` naming the file."""
+    text = read_text(path, what, error)
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise error(f"{what} {path} is not valid YAML: {' '.join(str(err).split())}") from err
 
 
 def read_image(path: str | Path, flags: int, what: str, error: type[SgsSlamError] = DatasetError) -> np.ndarray:

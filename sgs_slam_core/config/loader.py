@@ -17,7 +17,7 @@ from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_
 import yaml
 
 from sgs_slam_core.errors import ConfigError
-from sgs_slam_core.fileio import read_text, write_text
+from sgs_slam_core.fileio import read_yaml, write_text
 
 __all__ = [
     "build",
@@ -161,10 +161,7 @@ def parse_override(text: str) -> dict[str, Any]:
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """A YAML mapping from a file (an empty file is an empty mapping)."""
     path = Path(path)
-    try:
-        data = yaml.safe_load(read_text(path, "config file", ConfigError)) or {}
-    except yaml.YAMLError as err:
-        raise ConfigError(f"config file {path} is not valid YAML: {err}") from err
+    data = read_yaml(path, "config file", ConfigError) or {}
     if not isinstance(data, dict):
         raise ConfigError(f"config file {path} must hold a mapping at the top level")
     return data

@@ -8,7 +8,7 @@ from pathlib import Path
 import yaml
 
 from sgs_slam_core.errors import DatasetError, ShapeError
-from sgs_slam_core.fileio import read_text, write_text
+from sgs_slam_core.fileio import read_yaml, write_text
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.validate import as_float, as_int
 
@@ -28,10 +28,7 @@ class CameraFile:
 
 def read_camera_file(path: Path) -> CameraFile:
     """Parse and validate a camera file."""
-    try:
-        data = yaml.safe_load(read_text(path, "camera file"))
-    except yaml.YAMLError as err:
-        raise DatasetError(f"cannot read camera file {path}: {err}") from err
+    data = read_yaml(path, "camera file")
     if not isinstance(data, dict):
         raise DatasetError(f"camera file {path} must be a mapping with {', '.join(_KEYS)}")
     missing = [k for k in _KEYS if k not in data]

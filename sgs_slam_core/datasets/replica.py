@@ -16,7 +16,6 @@ import re
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from sgs_slam_core.datasets.base import (
     DatasetOptions,
@@ -28,7 +27,7 @@ from sgs_slam_core.datasets.base import (
 )
 from sgs_slam_core.datasets.camera_file import read_camera_file
 from sgs_slam_core.errors import DatasetError
-from sgs_slam_core.fileio import read_text
+from sgs_slam_core.fileio import read_text, read_yaml
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelClass, LabelError, LabelTable
 
@@ -137,8 +136,8 @@ class ReplicaDataset(RecordDataset):
     def _label_table(root: Path, labels: list[Path], sem_colors: list[Path]) -> LabelTable:
         if (root / "labels.yaml").is_file():
             try:
-                return LabelTable.from_dict(yaml.safe_load(read_text(root / "labels.yaml", "label table")))
-            except (yaml.YAMLError, LabelError) as err:
+                return LabelTable.from_dict(read_yaml(root / "labels.yaml", "label table"))
+            except LabelError as err:
                 raise DatasetError(f"bad label table {root / 'labels.yaml'}: {err}") from err
         if labels and len(sem_colors) == len(labels):
             return _table_from_color_images(labels, sem_colors)

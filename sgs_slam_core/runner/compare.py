@@ -14,9 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
-
 from sgs_slam_core.errors import DatasetError
+from sgs_slam_core.fileio import read_yaml
 from sgs_slam_core.runner.report import METRIC_ROWS, read_metrics
 
 __all__ = ["DEFAULT_METRICS", "RunSummary", "TableFormat", "format_comparison", "load_run", "metric_keys"]
@@ -73,10 +72,8 @@ def load_run(path: Path, name: str | None = None) -> RunSummary:
     metrics = read_metrics(path / "metrics.json")
     run_yaml: dict[str, Any] = {}
     if (path / "run.yaml").is_file():
-        try:
-            run_yaml = yaml.safe_load((path / "run.yaml").read_text()) or {}
-        except yaml.YAMLError as err:
-            raise DatasetError(f"{path / 'run.yaml'} is not valid YAML: {err}") from err
+        loaded = read_yaml(path / "run.yaml", "run file")
+        run_yaml = loaded if isinstance(loaded, dict) else {}
     return RunSummary(name or str(path), metrics, _info(run_yaml, metrics))
 
 

@@ -16,7 +16,7 @@ import yaml
 
 from sgs_slam_core.datasets.base import DatasetOptions
 from sgs_slam_core.errors import DatasetError
-from sgs_slam_core.fileio import read_text, write_text
+from sgs_slam_core.fileio import read_yaml, write_text
 from sgs_slam_core.validate import as_float, as_int
 
 __all__ = ["RUN_STATUSES", "RunInfo", "read_run_info", "write_run_info"]
@@ -73,10 +73,7 @@ def read_run_info(run_dir: Path) -> RunInfo:
     path = run_dir / "run.yaml"
     if not path.is_file():
         raise DatasetError(f"{run_dir} is not a run folder (no run.yaml)")
-    try:
-        data = yaml.safe_load(read_text(path, "run file"))
-    except yaml.YAMLError as err:
-        raise DatasetError(f"{path} is not valid YAML: {' '.join(str(err).split())}") from err
+    data = read_yaml(path, "run file")
     if not isinstance(data, dict):
         raise DatasetError(f"{path}: expected a mapping (input, format, options, ...), got {type(data).__name__}")
     source = data.get("input")
