@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from bags.cdr_image import CdrImage, decode_image
@@ -240,6 +241,18 @@ class BagDataset:
     def stamps_ns(self) -> list[int]:
         """Header stamps of the kept frames."""
         return [f.stamp_ns for f in self._frames]
+
+    def ground_truth(self, index: int) -> np.ndarray | None:
+        """The recorded pose of kept frame ``index`` as c2w [4, 4], or None (no image is decoded)."""
+        idx = self._frames[index]
+        pose = self._poses.get(idx.stamp_ns)
+        try:
+            gt = pose_to_c2w(self._mcap.decode(pose)) if pose is not None else None
+        except AdapterError as err:
+            raise BagError(f"{self.file}, pose at {idx.stamp_ns} ns: {err}") from err
+        if gt is not None and not np.isfinite(gt).all():  # as Frame refuses it
+            raise BagError(f"{self.file}, pose at {idx.stamp_ns} ns is not finite")
+        return gt
 
     def __len__(self) -> int:
         return len(self._frames)

@@ -101,6 +101,10 @@ class Dataset(Protocol):
         """Time stamp of every frame (ns), without decoding any."""
         ...
 
+    def ground_truth(self, index: int) -> np.ndarray | None:
+        """Ground-truth c2w [4, 4] of frame ``index`` (None without), without decoding its images."""
+        ...
+
     def __len__(self) -> int: ...
 
     def __getitem__(self, index: int) -> Frame: ...
@@ -239,6 +243,11 @@ class RecordDataset:
     def stamps_ns(self) -> list[int]:
         """Time stamp of every kept frame (ns)."""
         return [r.stamp_ns for r in self._records]
+
+    def ground_truth(self, index: int) -> np.ndarray | None:
+        """Ground-truth c2w [4, 4] of kept frame ``index``, or None."""
+        gt = self._records[index].gt_c2w
+        return None if gt is None else gt.copy()
 
     def __len__(self) -> int:
         return len(self._records)

@@ -147,10 +147,11 @@ def evaluate(
 ) -> dict[str, Any]:
     """Compute every metric of ``metrics.json`` that depends on the map and trajectory."""
     with_gt = []  # (estimate, ground truth, stamp_ns) of frames with ground truth
+    stamps = dataset.stamps_ns
     for i, p in zip(frame_indices, poses, strict=True):
-        frame = dataset[i]
-        if frame.gt_c2w is not None:
-            with_gt.append((p, frame.gt_c2w, frame.stamp_ns))
+        gt_c2w = dataset.ground_truth(i)  # no image decoded: only the evaluated frames below are read
+        if gt_c2w is not None:
+            with_gt.append((p, gt_c2w, stamps[i]))
     est = np.stack([p for p, _, _ in with_gt]) if with_gt else np.zeros((0, 4, 4))
     gt = np.stack([g for _, g, _ in with_gt]) if with_gt else np.zeros((0, 4, 4))
     gt_stamps = np.array([s for _, _, s in with_gt], dtype=np.int64)

@@ -92,10 +92,11 @@ class SlamProgress:
     """A :class:`ProgressBar` over a run's frames showing live ATE, Gaussians and failures.
 
     The ATE is the RMSE of the aligned camera centres of the frames processed so far (as the
-    final metric), recomputed every ``ate_every`` frames once three frames have ground truth.
+    final metric), recomputed every ``ate_every`` frames (each costs O(frames so far)) and at the
+    last frame, once three frames have ground truth.
     """
 
-    def __init__(self, total: int, label: str = "slam", stream: TextIO | None = None, ate_every: int = 1,
+    def __init__(self, total: int, label: str = "slam", stream: TextIO | None = None, ate_every: int = 10,
                  interactive: bool | None = None) -> None:  # fmt: skip
         self.bar = ProgressBar(total, label, stream, interactive=interactive)
         self.ate_every = max(1, ate_every)
@@ -115,7 +116,8 @@ class SlamProgress:
         if frame.gt_c2w is not None:
             self._est.append(step.c2w)
             self._gt.append(frame.gt_c2w)
-            if len(self._gt) >= 3 and len(self._gt) % self.ate_every == 0:
+            due = len(self._gt) % self.ate_every == 0 or self.frames >= self.bar.total
+            if len(self._gt) >= 3 and due:
                 self._ate_cm = 100 * ate(np.stack(self._est), np.stack(self._gt)).rmse
         parts = [f"ATE {self._ate_cm:.2f} cm"] if self._ate_cm is not None else []
         parts.append(f"{slam.num_gaussians:,} Gaussians")

@@ -69,6 +69,10 @@ def round_trip(dataset, tmp_path):
     for i in (0, len(dataset) - 1):
         a, b = dataset[i], back[i]
         assert np.array_equal(a.rgb, b.rgb) and a.stamp_ns == b.stamp_ns
+    for ds in (dataset, back):  # ground truth without decoding frames, the same as the frames carry
+        for i in range(len(ds)):
+            gt, frame_gt = ds.ground_truth(i), ds[i].gt_c2w
+            assert (gt is None) == (frame_gt is None) and (gt is None or np.allclose(gt, frame_gt, atol=1e-12))
         assert (a.labels is None) == (b.labels is None) and (a.labels is None or np.array_equal(a.labels, b.labels))
     return bag
 
