@@ -27,10 +27,9 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 from bench.common import REPO, append_section, markdown_table
 from bench.plot import Series, line_panel, save_panels
-from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.synthetic import generate, preset_config
-from test.ros.helpers import Feeder, Spinner, new_context, node_params, wait_for
+from test.ros.helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames, wait_for
 
 PLOT = REPO / "bench" / "results" / "soak_slam_node_64x48.png"
 
@@ -65,8 +64,7 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
     """Publish ``count`` frames into an in-process slam_node and sample it every ``every`` frames."""
     from sgs_slam_ros.slam_node import build_slam_nodes  # noqa: PLC0415 - rclpy only when running
 
-    ds = open_dataset(scene)
-    frames = [replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32)) for i in range(len(ds))]
+    frames = tiny_frames(scene)  # depth in millimetres, as a 16UC1 camera delivers it
     ctx = new_context()
     overrides = [f"tracking.iterations={iterations}", f"mapping.iterations={iterations}"]
     params = node_params(overrides=overrides, lockstep=False, input_qos="best_effort", render_rate_hz=2.0,
@@ -82,7 +80,7 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
 
         def sample(published: int) -> None:
             st, slam, a = tracking.pipeline.stats, tracking.pipeline.slam, tracking.assembler
-            drops = st.dropped_frames + a.sync.dropped + sum(a.rejected.values())
+            drops = st.dropped_frames + a.colour_dropped + a.frames_rejected  # as /diagnostics counts them
             samples.append(Sample(published, time.monotonic() - start, rss_mb(), slam.num_gaussians, st.tracked,
                                   len(slam.keyframes), drops, st.errors))  # fmt: skip
             print(f"{published:6d} frames  {samples[-1].rss_mb:7.1f} MB  {slam.num_gaussians:6d} G  "
@@ -98,12 +96,7 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
                 time.sleep(delay)
         tracking.pipeline.wait_idle(60.0)
     finally:
-        spinner.stop()
-        for n in [*nodes, feeder]:
-            if hasattr(n, "close"):
-                n.close()
-            n.destroy_node()
-        ctx.try_shutdown()
+        shut_down(ctx, [*nodes, feeder], spinner)
     return samples
 
 

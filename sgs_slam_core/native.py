@@ -12,7 +12,6 @@ fall back to their pure-PyTorch references). Importing this module builds nothin
 from __future__ import annotations
 
 import hashlib
-import logging
 import os
 import platform
 import threading
@@ -26,8 +25,6 @@ from sgs_slam_core.errors import BackendUnavailableError
 from sgs_slam_core.fileio import read_bytes
 
 __all__ = ["NativeExtension", "prepare"]
-
-log = logging.getLogger(__name__)
 
 _CFLAGS = ("-O3", "-march=native", "-fopenmp", "-fno-math-errno", "-fno-trapping-math")
 

@@ -60,7 +60,6 @@ class FrameAssembler:
         self.intrinsics: Intrinsics | None = None
         self.last_stamp_ns: int | None = None
         self.rejected: Counter[str] = Counter()
-        self.received: Counter[str] = Counter()
         self._logged: set[str] = set()
         self._lock = threading.Lock()
         self._waiting: list[tuple[int, list[Any]]] = []  # synchronised sets that arrived before any camera_info
@@ -95,7 +94,6 @@ class FrameAssembler:
 
     def camera_info(self, msg: Any) -> None:
         """Remember the latest intrinsics (assumed to stay valid until the next camera_info)."""
-        self.received["camera_info"] += 1
         try:
             k, warnings = camera_info_to_intrinsics(msg)
         except AdapterError as err:
@@ -113,7 +111,6 @@ class FrameAssembler:
 
     def image(self, index: int, msg: Any) -> None:
         """An rgb (0), depth (1) or semantic (2) image."""
-        self.received[("rgb", "depth", "semantic")[index]] += 1
         with self._lock:
             if index == RGB:
                 self.colour_in += 1

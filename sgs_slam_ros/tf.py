@@ -81,7 +81,6 @@ class TfPublisher:
             return
         self.pub = node.create_publisher(self.tf_message, "/tf", TF_QOS)
         self.static_pub = node.create_publisher(self.tf_message, "/tf_static", TF_STATIC_QOS)
-        self.published = 0
 
     def chain(self, c2w: np.ndarray, stamp_ns: int, camera: str) -> tuple[list, list]:
         """(dynamic, static) transforms for the camera pose ``c2w`` [4, 4] in the map frame."""
@@ -105,4 +104,3 @@ class TfPublisher:
             self.static_pub.publish(self.tf_message(transforms=static))
             self._static_for = camera
         self.pub.publish(self.tf_message(transforms=dynamic))
-        self.published += 1

@@ -101,7 +101,6 @@ class SlamPipeline:
         self._map_stream = torch.cuda.Stream(slam.device) if slam.device.type == "cuda" else None
         # live on the CPU: tracking and mapping take turns instead of sharing the cores (see the module doc)
         self._share_cpu = not lockstep and track and map and slam.device.type == "cpu"
-        self._map_share = 1.0  # mapping's turn after each tracked frame, in units of that frame's tracking time
         self._map_turn_until = 0.0  # time.monotonic() until which mapping may run before the next frame
         self._threads = []
         if track:
@@ -179,7 +178,8 @@ class SlamPipeline:
                 outcome = None
             with self._cv:
                 if self._share_cpu:  # mapping's turn: as long as this frame's tracking took
-                    self._map_turn_until = time.monotonic() + self._map_share * (time.monotonic() - started)
+                    now = time.monotonic()
+                    self._map_turn_until = now + (now - started)
                 if outcome is not None:
                     self.stats.tracked += 1
                     self.stats.tracking_failures += int(outcome.failed)

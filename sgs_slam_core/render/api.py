@@ -159,16 +159,11 @@ def _rasterize_tiled(
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:  # colour [H, W, 3], semantic [H, W, S], depth [H, W], sil [H, W]
     """Projection in torch (autograd), then the compiled or the torch compositor.
 
-    Isotropic maps on the compiled backend skip the torch projection: projection, binning and
-    compositing (and their gradients) all run in the extension.
+    (Isotropic maps on the compiled backend do not come here: ``render`` sends them whole to
+    :func:`cpu_backend.render_world_isotropic_cpu`.)
     """
     k, d = intrinsics, cam.features.shape[1]
     groups = (3, d - 3)  # colour, semantics: separate outputs, so no slice of the image needs a backward
-    if compiled and cam.quats is None:
-        color, semantic, depth, sil = cpu_backend.render_isotropic_cpu(
-            cam.means, cam.scales, cam.opacities, cam.features, intrinsics, settings, groups
-        )
-        return color, semantic, depth.view(k.height, k.width), sil
     if cam.quats is None:
         proj = project_gaussians(cam.means, cam.opacities, intrinsics, settings, scales=cam.scales)
     else:

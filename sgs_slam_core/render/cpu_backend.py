@@ -23,7 +23,6 @@ __all__ = [
     "composite_cpu",
     "extension",
     "is_available",
-    "render_isotropic_cpu",
     "render_world_isotropic_cpu",
     "unavailable_reason",
 ]
@@ -115,64 +114,6 @@ def composite_cpu(
     """
     out = _CppComposite.apply(means2d, conics, opacities, features, radii, depths, width, height, settings, groups)
     return tuple(out)
-
-
-class _CppIsotropicRender(torch.autograd.Function):
-    """Projection, binning and compositing of isotropic Gaussians in two C++ calls (forward, backward)."""
-
-    @staticmethod
-    def forward(  # type: ignore[override]
-        ctx: Any,
-        means_cam: Tensor,  # [N, 3]
-        scales: Tensor,  # [N]
-        opacities: Tensor,  # [N]
-        features: Tensor,  # [N, D]
-        k: Intrinsics,
-        s: RenderSettings,
-        groups: tuple[int, ...],
-    ) -> tuple[Tensor, ...]:
-        ext, threads = extension(), torch.get_num_threads()
-        mc, sc, op = (t.detach().contiguous() for t in (means_cam, scales, opacities))
-        cam = (k.fx, k.fy, k.cx, k.cy, k.width, k.height)
-        m2d, con, rad, dep = ext.project_isotropic(mc, sc, op, *cam, s.near_plane, s.eps2d, s.alpha_min,
-                                                   s.extent_sigma, threads)  # fmt: skip
-        feats = torch.cat([features.detach(), dep[:, None]], dim=1).contiguous()
-        tile = s.cpu_tile(ext.max_tile(mc.dtype == torch.float64))
-        gids, offsets = ext.bin_gaussians(m2d, rad, dep, k.width, k.height, tile)
-        args = (k.width, k.height, tile, s.alpha_min, s.alpha_max, s.extent_sigma**2, s.min_transmittance,
-                threads)  # fmt: skip
-        ctx.groups = [*groups, 1]
-        *images, sil, t_final, count = ext.composite_forward(m2d, con, op, rad, feats, gids, offsets, ctx.groups, *args)
-        ctx.save_for_backward(mc, sc, m2d, con, op, rad, feats, gids, offsets, t_final, count)
-        ctx.args, ctx.cam, ctx.s = args, cam, s
-        return (*images, sil)
-
-    @staticmethod
-    def backward(ctx: Any, *grad_out: Tensor | None) -> tuple[Tensor | None, ...]:  # type: ignore[override]
-        mc, sc, m2d, con, op, rad, feats, gids, offsets, t_final, count = ctx.saved_tensors
-        ext, s = extension(), ctx.s
-        g = ext.composite_backward(m2d, con, op, rad, feats, gids, offsets, t_final, count, ctx.groups,
-                                   *_grads(grad_out), *ctx.args)  # fmt: skip
-        d = feats.shape[1] - 1
-        g_mc, g_sc = ext.project_isotropic_backward(mc, sc, g[:, 0:2], g[:, 2:5], g[:, 6 + d], *ctx.cam, s.near_plane,
-                                                    s.eps2d, torch.get_num_threads())  # fmt: skip
-        return g_mc, g_sc, g[:, 5], g[:, 6 : 6 + d], None, None, None
-
-
-def render_isotropic_cpu(
-    means_cam: Tensor,  # [N, 3] camera frame
-    scales: Tensor,  # [N] standard deviations (m)
-    opacities: Tensor,  # [N]
-    features: Tensor,  # [N, D]
-    intrinsics: Intrinsics,
-    settings: RenderSettings,
-    groups: tuple[int, ...],
-) -> tuple[Tensor, ...]:
-    """``(*feature groups [H, W, g], depth [H, W, 1], silhouette [H, W])``, all in the compiled kernels.
-
-    ``groups`` splits the ``D`` feature channels (e.g. 3 colour, S semantic).
-    """
-    return tuple(_CppIsotropicRender.apply(means_cam, scales, opacities, features, intrinsics, settings, groups))
 
 
 class _CppWorldIsotropicRender(torch.autograd.Function):

@@ -803,24 +803,6 @@ inline void project_one_backward(const Proj<T>& k, const T* mc, T scale, const T
   *g_scale = g_s2 * T(2) * scale * iz * iz;
 }
 
-template <typename T>
-void project_all(const Camera& k, int64_t n, const T* mc, const T* sc, const T* op, T* m2d, T* con, T* rad, T* dep,
-                 int threads) {
-  const Proj<T> pk(k);
-#pragma omp parallel for num_threads(threads) schedule(static)
-  for (int64_t g = 0; g < n; ++g) project_one(pk, mc + 3 * g, sc[g], op[g], m2d + 2 * g, con + 3 * g, rad + g, dep + g);
-}
-
-template <typename T>
-void project_backward_all(const Camera& k, int64_t n, const T* mc, const T* sc, const T* g_m2d, const T* g_con,
-                          const T* g_dep, int64_t dep_stride, T* g_mc, T* g_sc, int threads) {
-  const Proj<T> pk(k);
-#pragma omp parallel for num_threads(threads) schedule(static)
-  for (int64_t g = 0; g < n; ++g)
-    project_one_backward(pk, mc + 3 * g, sc[g], g_m2d + 2 * g, g_con + 3 * g, g_dep[g * dep_stride], g_mc + 3 * g,
-                         g_sc + g);
-}
-
 }  // namespace
 
 // Tile lists: Gaussians sorted by depth (ties by index, as a stable sort), appended to every tile
@@ -1000,48 +982,6 @@ torch::Tensor composite_backward(torch::Tensor means2d, torch::Tensor conics, to
   return out;
 }
 
-// (means2d [N, 2], conics [N, 3], radii [N], depths [N]) of isotropic camera-frame Gaussians.
-std::vector<torch::Tensor> project_isotropic(torch::Tensor means_cam, torch::Tensor scales, torch::Tensor opacities,
-                                             double fx, double fy, double cx, double cy, int64_t width, int64_t height,
-                                             double near, double eps2d, double alpha_min, double extent_sigma,
-                                             int64_t threads) {
-  TORCH_CHECK(means_cam.is_contiguous() && scales.is_contiguous() && opacities.is_contiguous(), "contiguous inputs");
-  const int64_t n = means_cam.size(0);
-  const Camera k{fx, fy, cx, cy, width, height, near, eps2d, alpha_min, extent_sigma};
-  auto m2d = torch::empty({n, 2}, means_cam.options());
-  auto con = torch::empty({n, 3}, means_cam.options());
-  auto rad = torch::empty({n}, means_cam.options());
-  auto dep = torch::empty({n}, means_cam.options());
-  AT_DISPATCH_FLOATING_TYPES(means_cam.scalar_type(), "project_isotropic", [&] {
-    project_all<scalar_t>(k, n, means_cam.data_ptr<scalar_t>(), scales.data_ptr<scalar_t>(),
-                          opacities.data_ptr<scalar_t>(), m2d.data_ptr<scalar_t>(), con.data_ptr<scalar_t>(),
-                          rad.data_ptr<scalar_t>(), dep.data_ptr<scalar_t>(), static_cast<int>(threads));
-  });
-  return {m2d, con, rad, dep};
-}
-
-// (d means_cam [N, 3], d scales [N]) from the gradients of means2d, conics and depths.
-std::vector<torch::Tensor> project_isotropic_backward(torch::Tensor means_cam, torch::Tensor scales,
-                                                      torch::Tensor g_means2d, torch::Tensor g_conics,
-                                                      torch::Tensor g_depths, double fx, double fy, double cx,
-                                                      double cy, int64_t width, int64_t height, double near,
-                                                      double eps2d, int64_t threads) {
-  const int64_t n = means_cam.size(0);
-  const Camera k{fx, fy, cx, cy, width, height, near, eps2d, 0.0, 0.0};
-  g_means2d = g_means2d.contiguous();
-  g_conics = g_conics.contiguous();
-  TORCH_CHECK(g_depths.dim() == 1, "depth gradients must be [N]");
-  auto g_mc = torch::empty({n, 3}, means_cam.options());
-  auto g_sc = torch::empty({n}, means_cam.options());
-  AT_DISPATCH_FLOATING_TYPES(means_cam.scalar_type(), "project_isotropic_backward", [&] {
-    project_backward_all<scalar_t>(k, n, means_cam.data_ptr<scalar_t>(), scales.data_ptr<scalar_t>(),
-                                   g_means2d.data_ptr<scalar_t>(), g_conics.data_ptr<scalar_t>(),
-                                   g_depths.data_ptr<scalar_t>(), g_depths.stride(0), g_mc.data_ptr<scalar_t>(),
-                                   g_sc.data_ptr<scalar_t>(), static_cast<int>(threads));
-  });
-  return {g_mc, g_sc};
-}
-
 // Per Gaussian: camera transform, activations, feature row (colour, semantics, depth) and projection.
 template <typename T>
 void prepare_world_all(const Camera& k, int64_t n, int64_t ns, const T* m, const T* ls, const T* lo, const T* col,
@@ -1092,7 +1032,7 @@ void world_backward_all(const Camera& k, int64_t n, int64_t ns, int64_t stride, 
 // The map's own parameters in, straight to the projection: w2c applied to the world means,
 // exp of the log-scales, sigmoid of the logit opacities, and the feature rows (colour, semantics,
 // camera depth) gathered in one pass, so no per-Gaussian tensor op runs in PyTorch per render.
-// Same maths as render/api.py's to_camera followed by project_isotropic.
+// Same maths as render/api.py's to_camera followed by projection.py's isotropic EWA projection.
 // Returns (means_cam [N, 3], scales [N], opacities [N], features [N, 3 + S + 1], means2d [N, 2],
 // conics [N, 3], radii [N]); the features' last column is the depth.
 std::vector<torch::Tensor> prepare_world_isotropic(torch::Tensor means, torch::Tensor log_scales,
@@ -1184,8 +1124,6 @@ std::vector<torch::Tensor> world_isotropic_backward(torch::Tensor means, torch::
 // The GIL is released while the kernels run, so tracking, mapping and rendering threads overlap.
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   using release = py::call_guard<py::gil_scoped_release>;
-  m.def("project_isotropic", &project_isotropic, release(), "EWA projection of isotropic Gaussians");
-  m.def("project_isotropic_backward", &project_isotropic_backward, release(), "gradients of project_isotropic");
   m.def("prepare_world_isotropic", &prepare_world_isotropic, release(),
         "camera transform, activations, feature rows and projection of the map's isotropic Gaussians");
   m.def("world_isotropic_backward", &world_isotropic_backward, release(),
