@@ -17,9 +17,9 @@ from bags.writer import convert
 from msg_adapters import AdapterError
 from sgs_slam_core.cli import add_debug_flag, run_command
 from sgs_slam_core.cli.args import IntRange
-from sgs_slam_core.cli.progress import ProgressBar
 from sgs_slam_core.cli.run import default_preset
 from sgs_slam_core.datasets import FORMATS, DatasetOptions, open_dataset
+from sgs_slam_core.runner.progress import ProgressBar
 
 __all__ = ["main"]
 

@@ -18,8 +18,8 @@ __all__ = ["add_debug_flag", "main", "run_command"]
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with one sub-command per module in this package.
 
-    The command modules are imported here, not at package import, so library modules may use
-    ``sgs_slam_core.cli.progress`` without importing every command (and the runner with them).
+    The command modules are imported here, not at package import, so importing one command (or
+    ``sgs_slam_core.cli.errors``) does not import every command and the runner with them.
     """
     from sgs_slam_core.cli import (  # noqa: PLC0415
         compare,

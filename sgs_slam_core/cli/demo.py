@@ -8,10 +8,10 @@ import sys
 from pathlib import Path
 
 from sgs_slam_core.cli.args import IntRange
-from sgs_slam_core.cli.progress import ProgressBar
 from sgs_slam_core.config import load_config
 from sgs_slam_core.datasets import DatasetOptions, open_dataset
 from sgs_slam_core.runner import format_table, run_offline
+from sgs_slam_core.runner.progress import ProgressBar
 from sgs_slam_core.synthetic import generate, preset_config
 
 __all__ = ["DEMO_PRESET", "add_parser", "default_room_dir", "ensure_room", "run"]

@@ -39,7 +39,7 @@ def _previous_metrics(path: Path) -> dict[str, Any]:
     except DatasetError as err:
         print(f"warning: {err}; it is replaced", file=sys.stderr)
         return {}
-    return previous if isinstance(previous, dict) else {}
+    return previous
 
 
 def run(args: argparse.Namespace) -> int:

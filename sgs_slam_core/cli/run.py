@@ -12,7 +12,7 @@ from sgs_slam_core.config import list_presets, load_config
 from sgs_slam_core.datasets import FORMATS, Dataset, DatasetOptions, detect_format, open_dataset
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.runner import format_table, run_offline
-from sgs_slam_core.runner.offline import check_run_dir
+from sgs_slam_core.runner.outputs import check_run_dir
 from sgs_slam_core.runner.realtime import RealtimeOptions
 
 __all__ = ["add_parser", "camera_rate", "default_preset", "open_input", "parse_topics", "run"]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from sgs_slam_core.cli.args import MAX_FRAMES, MAX_IMAGE_SIDE, MAX_SEED, FloatRange, IntRange
 from sgs_slam_core.cli.errors import UsageError
-from sgs_slam_core.cli.progress import ProgressBar
+from sgs_slam_core.runner.progress import ProgressBar
 from sgs_slam_core.synthetic import SYNTH_PRESETS, generate, preset_config
 
 __all__ = ["MAX_PIXELS", "add_parser", "run"]

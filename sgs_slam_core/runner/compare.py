@@ -72,8 +72,9 @@ def load_run(path: Path, name: str | None = None) -> RunSummary:
     metrics = read_metrics(path / "metrics.json")
     run_yaml: dict[str, Any] = {}
     if (path / "run.yaml").is_file():
-        loaded = read_yaml(path / "run.yaml", "run file")
-        run_yaml = loaded if isinstance(loaded, dict) else {}
+        run_yaml = read_yaml(path / "run.yaml", "run file") or {}
+        if not isinstance(run_yaml, dict):
+            raise DatasetError(f"{path / 'run.yaml'}: expected a mapping, got {type(run_yaml).__name__}")
     return RunSummary(name or str(path), metrics, _info(run_yaml, metrics))
 
 

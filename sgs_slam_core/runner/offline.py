@@ -32,7 +32,7 @@ from sgs_slam_core.mapio import save_map, write_splat_ply
 from sgs_slam_core.metrics import write_tum_trajectory
 from sgs_slam_core.render.api import resolve_backend
 from sgs_slam_core.runner.evaluation import EvalOptions, evaluate
-from sgs_slam_core.runner.outputs import RESULT_FILES, check_run_dir, prepare_run_dir, remove_run, write_csv
+from sgs_slam_core.runner.outputs import RESULT_FILES, prepare_run_dir, remove_run, write_csv
 from sgs_slam_core.runner.progress import SlamProgress
 from sgs_slam_core.runner.realtime import RealtimeOptions, RealtimeStats, run_realtime
 from sgs_slam_core.runner.report import write_metrics
@@ -42,7 +42,7 @@ from sgs_slam_core.runner.safety import RunInterrupted, StopRequest
 from sgs_slam_core.slam.system import Slam, StepResult
 from sgs_slam_core.viz.viewer import Viewer
 
-__all__ = ["RunResult", "check_run_dir", "prepare_run_dir", "run_offline"]  # the folder helpers live in outputs
+__all__ = ["RunResult", "run_offline"]
 
 log = logging.getLogger(__name__)
 

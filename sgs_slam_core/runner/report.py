@@ -70,8 +70,11 @@ def write_metrics(path: Path, metrics: dict[str, Any]) -> None:
 
 
 def read_metrics(path: Path) -> dict[str, Any]:
-    """Load a ``metrics.json``."""
+    """Load a ``metrics.json`` (a JSON object; anything else raises :class:`DatasetError`)."""
     try:
-        return json.loads(read_text(path, "metrics file"))
+        metrics = json.loads(read_text(path, "metrics file"))
     except json.JSONDecodeError as err:
         raise DatasetError(f"cannot read metrics {path}: {err}") from err
+    if not isinstance(metrics, dict):
+        raise DatasetError(f"metrics file {path}: expected a JSON object, got {type(metrics).__name__}")
+    return metrics

@@ -6,8 +6,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from sgs_slam_core.cli.progress import ProgressBar, SlamProgress
 from sgs_slam_core.metrics import ate
+from sgs_slam_core.runner.progress import ProgressBar, SlamProgress
 
 
 def test_log_lines_carry_elapsed_eta_rate_and_extra_and_are_rate_limited(monkeypatch):

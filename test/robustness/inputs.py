@@ -163,6 +163,13 @@ def run_with_yaml(env: Env, name: str, text: str | None = None, **changes: objec
     return run
 
 
+def run_with_metrics(env: Env, name: str, text: str) -> Path:
+    """A copy of the finished run with metrics.json replaced by ``text``."""
+    run = env.copy(env.run, name)
+    (run / "metrics.json").write_text(text)
+    return run
+
+
 # ---------------------------------------------------------------------------------------------- maps
 def ply_with_header(env: Env, name: str, old: str, new: str) -> Path:
     """The run's map.ply with one header line replaced (the binary body untouched)."""
