@@ -8,22 +8,10 @@ import numpy as np
 
 from msg_adapters.errors import AdapterError
 from msg_adapters.stamps import ns_to_stamp
+from sgs_slam_core.errors import ShapeError
+from sgs_slam_core.geometry.se3 import quat_xyzw_to_matrix
 
 __all__ = ["c2w_to_pose", "pose_to_c2w"]
-
-
-def _quat_xyzw_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
-    n = np.sqrt(x * x + y * y + z * z + w * w)
-    if not np.isfinite(n) or n < 1e-9:
-        raise AdapterError(f"pose.orientation: not a rotation quaternion ({x}, {y}, {z}, {w})")
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 def _matrix_to_quat_xyzw(r: np.ndarray) -> tuple[float, float, float, float]:
@@ -47,7 +35,10 @@ def pose_to_c2w(msg: Any) -> np.ndarray:  # [4, 4] float64
     pose = msg.pose if hasattr(msg, "pose") else msg
     p, q = pose.position, pose.orientation
     out = np.eye(4)
-    out[:3, :3] = _quat_xyzw_to_matrix(float(q.x), float(q.y), float(q.z), float(q.w))
+    try:
+        out[:3, :3] = quat_xyzw_to_matrix(float(q.x), float(q.y), float(q.z), float(q.w))
+    except ShapeError as err:
+        raise AdapterError(f"pose.orientation: {err}") from err
     out[:3, 3] = [float(p.x), float(p.y), float(p.z)]
     if not np.isfinite(out).all():
         raise AdapterError("pose.position: not finite")

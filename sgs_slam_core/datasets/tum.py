@@ -20,6 +20,7 @@ from sgs_slam_core.datasets.camera_file import read_camera_file
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.fileio import read_text
 from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.geometry.se3 import quat_xyzw_to_matrix
 from sgs_slam_core.labels import LabelTable
 
 __all__ = ["TUM_INTRINSICS", "TumDataset", "associate", "interpolate_poses", "read_ground_truth", "read_stamped_list"]
@@ -117,17 +118,6 @@ def associate(a: np.ndarray, b: np.ndarray, max_dt: float = MAX_ASSOCIATION_S) -
     return sorted(pairs)
 
 
-def _quat_xyzw_to_rotmat(q: np.ndarray) -> np.ndarray:  # [4] -> [3, 3]
-    x, y, z, w = q / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 def _slerp(q0: np.ndarray, q1: np.ndarray, s: float) -> np.ndarray:
     q0, q1 = q0 / np.linalg.norm(q0), q1 / np.linalg.norm(q1)
     dot = float(np.dot(q0, q1))
@@ -163,7 +153,7 @@ def interpolate_poses(
         s = 0.0 if hi == lo else (t - gt_stamps[lo]) / (gt_stamps[hi] - gt_stamps[lo])
         pose = np.eye(4)
         pose[:3, 3] = (1 - s) * gt[lo, :3] + s * gt[hi, :3]
-        pose[:3, :3] = _quat_xyzw_to_rotmat(_slerp(gt[lo, 3:], gt[hi, 3:], s))
+        pose[:3, :3] = quat_xyzw_to_matrix(*_slerp(gt[lo, 3:], gt[hi, 3:], s))
         out.append(pose)
     return out
 

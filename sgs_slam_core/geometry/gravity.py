@@ -26,6 +26,7 @@ import numpy as np
 
 from sgs_slam_core.errors import ShapeError
 from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.geometry.se3 import quat_xyzw_to_matrix
 
 __all__ = [
     "OPTICAL_IN_BODY",
@@ -104,16 +105,7 @@ def pose_from_xyz_rpy(values: Sequence[float]) -> np.ndarray:  # [4, 4]
     if len(v) == 6:
         pose[:3, :3] = rpy_to_matrix(*v[3:])
         return pose
-    x, y, z, w = v[3:]
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    if n < 1e-9:
-        raise ShapeError(f"the quaternion of a pose must not be zero, got {v[3:]}")
-    x, y, z, w = x / n, y / n, z / n, w / n
-    pose[:3, :3] = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
+    pose[:3, :3] = quat_xyzw_to_matrix(*v[3:])
     return pose
 
 

@@ -6,8 +6,10 @@ homogeneous matrices; ``c2w`` maps camera (optical frame: x right, y down, z for
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -17,6 +19,7 @@ __all__ = [
     "quat_multiply",
     "quat_normalize",
     "quat_to_rotmat",
+    "quat_xyzw_to_matrix",
     "rotmat_to_quat",
     "se3_exp",
     "se3_from_rt",
@@ -25,6 +28,27 @@ __all__ = [
     "so3_log",
     "transform_points",
 ]
+
+
+def quat_xyzw_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:  # [3, 3] float64
+    """Rotation matrix of an xyzw quaternion (ROS, TUM order), normalised here.
+
+    A zero or non-finite quaternion raises :class:`ShapeError`. Host numpy; the tensor form is
+    :func:`quat_to_rotmat`.
+    """
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if not math.isfinite(n):
+        raise ShapeError(f"not a finite quaternion (x y z w = {x}, {y}, {z}, {w})")
+    if n < 1e-9:
+        raise ShapeError(f"a zero quaternion (x y z w = {x}, {y}, {z}, {w}) is not a rotation")
+    x, y, z, w = x / n, y / n, z / n, w / n
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _check_last(x: Tensor, dims: tuple[int, ...], name: str) -> None:

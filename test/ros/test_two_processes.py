@@ -37,7 +37,9 @@ def test_poses_arrive_across_processes(tiny_scene):
     feeder.create_subscription(PointCloud2, "/mapping_node/gaussians", maps.append, 10)
     spinner = Spinner(ctx, [feeder])
     try:
-        assert wait_for(lambda: feeder.connected(subscribers=2), 30.0), "the two nodes did not subscribe"
+        assert wait_for(lambda: feeder.connected(subscribers=2), 60.0), (
+            "the two nodes did not subscribe"
+        )  # two interpreters start
         for f in frames:
             feeder.publish(f)
             assert wait_for(lambda f=f: f.stamp_ns in feeder.poses, 60.0), f"no pose for frame {f.index}"
