@@ -3,7 +3,8 @@
 Each stream keeps a queue of the ``queue_size`` newest items. When an item arrives, the newest
 item of every other stream closest in time to it is taken; if all lie within ``slop_ns`` of each
 other (exact equality when ``slop_ns`` is 0) the set is emitted, and every queued item up to those
-is removed. Items that leave a queue without being emitted are counted in ``dropped``. Used by the
+is removed. Items that leave a queue without being emitted are counted in ``dropped`` (and per
+stream in ``dropped_by_input``). Used by the
 ROS nodes for live topics and by the bag reader for recorded stamps, so offline and live runs see
 the same frame sets.
 """
@@ -26,8 +27,17 @@ class ApproximateSync:
             )
         self.queue_size, self.slop_ns = queue_size, slop_ns
         self._queues: list[deque[tuple[int, Any]]] = [deque() for _ in range(num_inputs)]
-        self.dropped = 0
+        self.dropped_by_input = [0] * num_inputs
         self.emitted = 0
+
+    @property
+    def dropped(self) -> int:
+        """Items of every stream that left their queue without being emitted."""
+        return sum(self.dropped_by_input)
+
+    def pending(self, index: int) -> int:
+        """Items of stream ``index`` queued, not yet emitted or dropped."""
+        return len(self._queues[index])
 
     @property
     def num_inputs(self) -> int:
@@ -40,7 +50,7 @@ class ApproximateSync:
         queue.append((stamp_ns, item))
         if len(queue) > self.queue_size:
             queue.popleft()
-            self.dropped += 1
+            self.dropped_by_input[index] += 1
         picks = []
         for j, other in enumerate(self._queues):
             if j == index:
@@ -57,13 +67,13 @@ class ApproximateSync:
             q = self._queues[j]
             for _ in range(p):  # older items of this stream can no longer be matched
                 q.popleft()
-                self.dropped += 1
+                self.dropped_by_input[j] += 1
             items.append(q.popleft()[1])
         self.emitted += 1
         return stamps[0], items
 
     def clear(self) -> None:
         """Forget every queued item (counted as dropped)."""
-        self.dropped += sum(len(q) for q in self._queues)
-        for q in self._queues:
+        for j, q in enumerate(self._queues):
+            self.dropped_by_input[j] += len(q)
             q.clear()

@@ -9,7 +9,7 @@ rejected (bad input), or still waits (``colour_in == emitted + colour_dropped + 
 from __future__ import annotations
 
 import threading
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
@@ -66,14 +66,19 @@ class FrameAssembler:
         self._queue_size = queue_size
         self.frame_id = ""  # header.frame_id of the latest colour image that became a frame
         self.colour_in = 0  # colour images received
-        self.colour_dropped = 0  # colour images the synchroniser dropped
-        self._colour_queue: deque[int] = deque()  # ids of the colour messages the synchroniser holds
+        self._waiting_dropped = 0  # sets waiting for camera_info dropped by a reset
+
+    @property
+    def colour_dropped(self) -> int:
+        """Colour images dropped unmatched by the synchroniser, or by a reset while waiting."""
+        with self._lock:
+            return self.sync.dropped_by_input[RGB] + self._waiting_dropped
 
     @property
     def frames_waiting(self) -> int:
         """Colour images held by the synchroniser or waiting for camera_info."""
         with self._lock:
-            return len(self._colour_queue) + len(self._waiting)
+            return self.sync.pending(RGB) + len(self._waiting)
 
     @property
     def frames_rejected(self) -> int:
@@ -112,17 +117,8 @@ class FrameAssembler:
     def image(self, index: int, msg: Any) -> None:
         """An rgb (0), depth (1) or semantic (2) image."""
         with self._lock:
-            if index == RGB:
-                self.colour_in += 1
-                self._colour_queue.append(id(msg))
-                if len(self._colour_queue) > self.sync.queue_size:  # the synchroniser drops the oldest too
-                    self._colour_queue.popleft()
-                    self.colour_dropped += 1
+            self.colour_in += int(index == RGB)
             matched = self.sync.push(index, stamp_to_ns(msg.header.stamp), msg)
-            if matched is not None:  # colour images older than the matched one are dropped by the synchroniser
-                emitted = id(matched[1][RGB])
-                while self._colour_queue and self._colour_queue.popleft() != emitted:
-                    self.colour_dropped += 1
         if matched is not None:
             self._assemble(*matched)
 
@@ -181,8 +177,6 @@ class FrameAssembler:
         """Forget queued messages and the last stamp (after a SLAM reset)."""
         with self._lock:
             self.sync.clear()
-            self.colour_dropped += len(self._colour_queue)
-            self._colour_queue.clear()
-            self.colour_dropped += len(self._waiting)
+            self._waiting_dropped += len(self._waiting)
             self._waiting.clear()
         self.last_stamp_ns = None

@@ -162,12 +162,15 @@ def test_sync_exact_and_approximate():
     approx.push(0, 100, "a100")
     approx.push(0, 133, "a133")
     assert approx.push(1, 131, "b131") == (133, ["a133", "b131"])
-    assert approx.dropped == 1  # a100 can no longer be matched
+    assert approx.dropped == 1 and approx.dropped_by_input == [1, 0]  # a100 can no longer be matched
     assert approx.push(1, 170, "b170") is None and approx.push(0, 200, "a200") is None  # 30 ns apart: no match
+    assert approx.pending(0) == 1 and approx.pending(1) == 1
+    approx.clear()
+    assert approx.dropped_by_input == [2, 1] and approx.pending(0) == 0
     tight = ApproximateSync(2, queue_size=2, slop_ns=0)
     for t in (1, 2, 3):
         tight.push(0, t, t)
-    assert tight.dropped == 1  # queue overflow
+    assert tight.dropped == 1 and tight.dropped_by_input == [1, 0]  # queue overflow
 
 
 def test_rosbags_messages_are_read_too():
