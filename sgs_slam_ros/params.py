@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException, ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -215,9 +215,9 @@ class NodeParams:
             try:
                 declared = node.declare_parameter(spec.name, spec.default, _descriptor(spec)).value
             except ParameterException as err:  # wrong type or out of range: one clear line
-                if "type" in type(err).__name__.lower() or "type" in str(err).lower():
+                if isinstance(err, InvalidParameterTypeException):
                     raise ParameterError(_type_hint(spec, err)) from err
-                if spec.bounds is not None and "range" in str(err):
+                if spec.bounds is not None and isinstance(err, InvalidParameterValueException):
                     lo, hi = spec.bounds
                     raise ParameterError(f"parameter {spec.name}: out of range (allowed: {lo} to {hi})") from err
                 raise ParameterError(f"parameter {spec.name}: {err}") from err
