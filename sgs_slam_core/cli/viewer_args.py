@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from sgs_slam_core.errors import ConfigError
+from sgs_slam_core.cli.args import IntRange
 from sgs_slam_core.viz import VIEWER_KINDS, ViewerOptions, ViewerSettings, kind_of_file, open_viewer
 from sgs_slam_core.viz.viewer import StreamingViewer
 
@@ -23,9 +23,9 @@ def add_viewer_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--viewer-save", type=Path, metavar="FILE",
                    help="record the same stream to FILE (.rrd for rerun, .mcap for foxglove); "
                    "without --viewer only the file is written")  # fmt: skip
-    g.add_argument("--viewer-port", type=int, metavar="PORT",
+    g.add_argument("--viewer-port", type=IntRange(1, 65535), metavar="PORT",
                    help="port of the live view (rerun gRPC 9876, foxglove WebSocket 8765 by default)")  # fmt: skip
-    g.add_argument("--viewer-points-every", type=int, default=10, metavar="N",
+    g.add_argument("--viewer-points-every", type=IntRange(1), default=10, metavar="N",
                    help="send the map's points every N frames (default 10; always after the last frame)")  # fmt: skip
 
 
@@ -33,10 +33,6 @@ def viewer_options_from_args(args: argparse.Namespace) -> ViewerOptions | None:
     """Validate the options (None without ``--viewer`` / ``--viewer-save``); nothing is started yet."""
     if args.viewer is None and args.viewer_save is None:
         return None
-    if args.viewer_points_every < 1:
-        raise ConfigError(f"--viewer-points-every must be >= 1, got {args.viewer_points_every}")
-    if args.viewer_port is not None and not 1 <= args.viewer_port <= 65535:
-        raise ConfigError(f"--viewer-port must be in 1..65535, got {args.viewer_port}")
     kind = args.viewer or kind_of_file(args.viewer_save)
     return ViewerOptions(kind=kind, live=args.viewer is not None, save=args.viewer_save, port=args.viewer_port,
                          settings=ViewerSettings(points_every=args.viewer_points_every))  # fmt: skip

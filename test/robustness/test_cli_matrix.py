@@ -276,6 +276,8 @@ CASES = [
          "frobnicate": 3}))], 1, "options: unknown keys ['frobnicate']"),
     Case("eval-run-yaml-option-type", lambda e: ["eval", str(run_with_yaml(e, "r", options={"stride": "abc"}))], 1,
          "options.stride: expected an integer, got 'abc'"),
+    Case("run-viewer-port-zero", lambda e: ["run", str(e.tiny), "--viewer-save", e.path("v.rrd"), "--viewer-port",
+         "0", "--out", e.path("r")], 2, "--viewer-port: 0 is out of range: 1..65535", absent=("r",)),
     Case("compare-metrics-json-list", lambda e: ["compare", str(run_with_metrics(e, "r", "[1, 2]\n"))], 1,
          "expected a JSON object, got list"),
     Case("compare-run-yaml-list", lambda e: ["compare", str(run_with_yaml(e, "r", "- 1\n- 2\n"))], 1,
