@@ -12,7 +12,9 @@ from rclpy.node import Node
 from sgs_slam_ros.messages import header
 from sgs_slam_ros.timers import steady_timer
 
-__all__ = ["Diagnostics", "RateMeter"]
+__all__ = ["OK", "WARN", "Diagnostics", "RateMeter"]
+
+OK, WARN = 0, 1  # DiagnosticStatus levels
 
 
 class RateMeter:

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import Image, PointCloud2
 from std_srvs.srv import SetBool, Trigger
 
 from bags.layout import CAMERA_FRAME
@@ -35,19 +35,17 @@ from sgs_slam_core.frame import Frame
 from sgs_slam_core.live import MapJob, SlamPipeline
 from sgs_slam_core.mapio import load_map, save_map
 from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
-from sgs_slam_ros.diagnostics import Diagnostics, RateMeter
+from sgs_slam_ros.camera_inputs import CameraInputs
+from sgs_slam_ros.diagnostics import OK, WARN, Diagnostics, RateMeter
 from sgs_slam_ros.edits import requested_edits
-from sgs_slam_ros.frames import FrameAssembler
-from sgs_slam_ros.inputs import InputWatch
 from sgs_slam_ros.messages import image_msg, pointcloud_msg
 from sgs_slam_ros.params import COMMON, EDIT, MAPPING, declare, slam_config
-from sgs_slam_ros.qos import input_qos, latched_qos, output_qos
+from sgs_slam_ros.qos import latched_qos, output_qos
 from sgs_slam_ros.runtime import run_nodes
 from sgs_slam_ros.timers import Throttled
 
 __all__ = ["MappingNode", "main"]
 
-OK, WARN = 0, 1
 _PENDING = 64  # frames / poses kept while waiting for their partner (standalone)
 
 
@@ -75,8 +73,7 @@ class MappingNode(Node):
         self.last_mapped_stamp = -1
         self._view: _View | None = None
         self._render_lock = threading.Lock()
-        self.assembler: FrameAssembler | None = None
-        self.watch: InputWatch | None = None
+        self.camera: CameraInputs | None = None  # standalone: its own camera inputs
         self.reset_listeners: list[Callable[[], None]] = []  # e.g. the composed tracking node's state
         self._frames: OrderedDict[int, Frame] = OrderedDict()  # standalone: frames waiting for their pose
         self._poses: OrderedDict[int, np.ndarray] = OrderedDict()  # and poses waiting for their frame
@@ -111,31 +108,9 @@ class MappingNode(Node):
 
     # ------------------------------------------------------------------ standalone inputs
     def _subscribe_inputs(self) -> None:
-        assembler = FrameAssembler(
-            self.params["use_semantics"], self.params["sync_queue_size"], round(self.params["sync_slop_s"] * 1e9),
-            self.params["depth_scale"], self._on_frame, self.get_logger().warn,
-        )  # fmt: skip
-        self.assembler = assembler
-        self.params.on_change["sync_slop_s"] = assembler.set_slop
-        self.params.on_change["depth_scale"] = lambda v: setattr(assembler, "depth_scale", v)
-        qos = input_qos(self.params["input_qos"], self.params["sync_queue_size"])
-        names = ["rgb", "depth", *(["semantic"] if self.params["use_semantics"] else [])]
-        for i, name in enumerate(names):
-            self.create_subscription(Image, f"{name}/image", lambda msg, i=i, n=name: self._image(i, n, msg), qos)
-        self.create_subscription(CameraInfo, "rgb/camera_info", self._camera_info, qos)
+        self.camera = CameraInputs(self, self.params, self._on_frame, {"pose": "tracking_node/pose"},
+                                   {"pose": "is tracking_node running?"})  # fmt: skip
         self.create_subscription(PoseStamped, "tracking_node/pose", self._on_pose, output_qos(50))
-        topics = {n: self.resolve_topic_name(f"{n}/image") for n in names}
-        topics["camera_info"] = self.resolve_topic_name("rgb/camera_info")
-        topics["pose"] = self.resolve_topic_name("tracking_node/pose")
-        self.watch = InputWatch(topics, self.get_logger().warn, {"pose": "is tracking_node running?"})
-
-    def _image(self, index: int, name: str, msg: Image) -> None:
-        self.watch.tick(name)
-        self.assembler.image(index, msg)
-
-    def _camera_info(self, msg: CameraInfo) -> None:
-        self.watch.tick("camera_info")
-        self.assembler.camera_info(msg)
 
     def _on_frame(self, frame: Frame) -> None:
         with self._pair_lock:
@@ -143,11 +118,11 @@ class MappingNode(Node):
             self._pair()
 
     def _on_pose(self, msg: PoseStamped) -> None:
-        self.watch.tick("pose")
+        self.camera.watch.tick("pose")
         try:
             c2w = pose_to_c2w(msg)
         except AdapterError as err:
-            self.assembler.reject("bad pose", str(err))
+            self.camera.assembler.reject("bad pose", str(err))
             return
         with self._pair_lock:
             self._poses[stamp_to_ns(msg.header.stamp)] = c2w
@@ -168,7 +143,7 @@ class MappingNode(Node):
             return self.params["camera_frame"]
         if self._camera_frame is not None:
             return self._camera_frame()
-        return (self.assembler.frame_id if self.assembler else "") or CAMERA_FRAME
+        return (self.camera.assembler.frame_id if self.camera else "") or CAMERA_FRAME
 
     def _on_mapped(self, frame: Frame, tracked: TrackOutcome, result: MapOutcome) -> None:
         if not self.context.ok():  # shutting down: the publishers are gone
@@ -250,8 +225,8 @@ class MappingNode(Node):
             saved = load_map(path, self.pipeline.slam.device)
             with self.pipeline.exclusive():
                 self.pipeline.slam.load_map(saved)
-            if self.assembler is not None:
-                self.assembler.reset()
+            if self.camera is not None:
+                self.camera.assembler.reset()
             if saved.trajectory:  # render the loaded map from its last pose until new frames are mapped
                 _, stamp, c2w = saved.trajectory[-1]
                 self.last_mapped_stamp = stamp
@@ -308,10 +283,8 @@ class MappingNode(Node):
 
     def after_reset(self) -> None:
         """Forget this node's per-run state and publish the empty map (latched viewers clear)."""
-        if self.assembler is not None:
-            self.assembler.reset()
-        if self.watch is not None:
-            self.watch.reset()
+        if self.camera is not None:
+            self.camera.reset()
         with self._pair_lock:
             self._frames.clear()
             self._poses.clear()
@@ -341,18 +314,12 @@ class MappingNode(Node):
             "undoable_edits": str(self.pipeline.slam.edits.depth),
             "renders_published": str(self.renders.count),
         }
-        if self.assembler is not None and self.watch is not None:  # standalone: its own inputs
-            stale = self.params["stale_input_s"]
-            silent = self.watch.silent(stale)
-            values["frames_in"] = str(self.assembler.colour_in)
-            values["frames_dropped"] = str(st.dropped_frames + self.assembler.colour_dropped)
-            values["frames_rejected"] = str(self.assembler.frames_rejected)
-            values["silent_inputs"] = ", ".join(self.watch.topics[n] for n in silent) or "none"
-            if self.watch.all_silent(stale):
-                level, message = WARN, f"no input: waiting for {', '.join(self.watch.topics.values())}"
-            elif silent:
-                names = ", ".join(self.watch.topics[n] for n in silent)
-                level, message = WARN, f"nothing mapped: {names} silent while the others arrive"
+        if self.camera is not None:  # standalone: its own inputs
+            silent, warning = self.camera.silence(self.params["stale_input_s"], "nothing mapped")
+            values.update(self.camera.counts(st.dropped_frames))
+            values["silent_inputs"] = self.camera.silent_names(silent)
+            if warning is not None:
+                level, message = warning
         return level, message, values
 
     def close(self) -> None:

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
 from bags.layout import CAMERA_FRAME
@@ -27,12 +27,11 @@ from sgs_slam_core.frame import Frame
 from sgs_slam_core.geometry.gravity import FloorSettings, MapAlignment, initial_map_pose, pose_from_xyz_rpy
 from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.slam.system import Slam, TrackOutcome
-from sgs_slam_ros.diagnostics import Diagnostics, RateMeter
-from sgs_slam_ros.frames import FrameAssembler
-from sgs_slam_ros.inputs import InputWatch
+from sgs_slam_ros.camera_inputs import CameraInputs
+from sgs_slam_ros.diagnostics import OK, WARN, Diagnostics, RateMeter
 from sgs_slam_ros.messages import path_msg, pose_msg
 from sgs_slam_ros.params import COMMON, TRACKING, ParameterError, declare, slam_config
-from sgs_slam_ros.qos import input_qos, latched_qos, output_qos
+from sgs_slam_ros.qos import latched_qos, output_qos
 from sgs_slam_ros.runtime import run_nodes
 from sgs_slam_ros.tf import TfFrames, TfPublisher
 
@@ -40,7 +39,6 @@ __all__ = ["TrackingNode", "main"]
 
 _REPUBLISH_S = 1.0  # s: lockstep with a remote mapper re-sends the last pose this often while waiting for its map
 
-OK, WARN, ERROR = 0, 1, 2
 
 SILENT_HINTS = {
     "semantic": "no labels, no frames: run the segmentation node, remap semantic/image, or set use_semantics:=false",
@@ -83,22 +81,9 @@ class TrackingNode(Node):
             pipeline = SlamPipeline(slam, self.params["lockstep"], track=True, map=True, log=log)
         self.pipeline = pipeline
         pipeline.pose_listeners.append(self._on_pose)
-        self.inputs = RateMeter()
         self.outputs = RateMeter()
-        self.assembler = FrameAssembler(
-            self.params["use_semantics"], self.params["sync_queue_size"], round(self.params["sync_slop_s"] * 1e9),
-            self.params["depth_scale"], self._on_frame, self.get_logger().warn,
-        )  # fmt: skip
-        self.params.on_change["sync_slop_s"] = self.assembler.set_slop
-        self.params.on_change["depth_scale"] = lambda v: setattr(self.assembler, "depth_scale", v)
-        qos = input_qos(self.params["input_qos"], self.params["sync_queue_size"])
-        names = ["rgb", "depth", *(["semantic"] if self.params["use_semantics"] else [])]
-        for i, name in enumerate(names):
-            self.create_subscription(Image, f"{name}/image", lambda msg, i=i, n=name: self._image(i, n, msg), qos)
-        self.create_subscription(CameraInfo, "rgb/camera_info", self._camera_info, qos)
-        topics = {n: self.resolve_topic_name(f"{n}/image") for n in names}
-        topics["camera_info"] = self.resolve_topic_name("rgb/camera_info")
-        self.watch = InputWatch(topics, self.get_logger().warn, SILENT_HINTS)
+        self.camera = CameraInputs(self, self.params, self._on_frame, hints=SILENT_HINTS)
+        self.assembler = self.camera.assembler
         self.pose_pub = self.create_publisher(PoseStamped, "~/pose", output_qos(10))
         self.path_pub = self.create_publisher(Path, "~/path", output_qos(1))
         self.tf = TfPublisher(
@@ -118,21 +103,11 @@ class TrackingNode(Node):
         self.diagnostics = Diagnostics(self, self._status)
         mode = "lockstep" if self.params["lockstep"] else "live"
         self.get_logger().info(
-            f"tracking {', '.join(topics.values())} with preset {self.params['preset']} on {pipeline.slam.device} "
-            f"({mode}); map frame '{self.map_frame}' ({self.alignment.value})"
+            f"tracking {', '.join(self.camera.watch.topics.values())} with preset {self.params['preset']} "
+            f"on {pipeline.slam.device} ({mode}); map frame '{self.map_frame}' ({self.alignment.value})"
         )
 
     # ------------------------------------------------------------------ inputs
-    def _image(self, index: int, name: str, msg: Image) -> None:
-        if index == 0:
-            self.inputs.tick()
-        self.watch.tick(name)
-        self.assembler.image(index, msg)
-
-    def _camera_info(self, msg: CameraInfo) -> None:
-        self.watch.tick("camera_info")
-        self.assembler.camera_info(msg)
-
     def _on_frame(self, frame: Frame) -> None:
         self._align(frame)
         self.pipeline.submit_frame(frame, time.monotonic())
@@ -218,24 +193,17 @@ class TrackingNode(Node):
 
     def after_reset(self) -> None:
         """Forget this node's per-run state (the pipeline was reset)."""
-        self.assembler.reset()
-        self.watch.reset()
+        self.camera.reset()
         self._aligned = False
         with self._path_lock:
             self.path.clear()
 
     def _status(self) -> tuple[int, str, dict[str, str]]:
         st, a = self.pipeline.stats, self.assembler
-        stale = self.params["stale_input_s"]
         level, message = OK, "tracking" if st.tracked else "waiting for the first synchronised frame"
-        silent = self.watch.silent(stale)
-        if self.watch.all_silent(stale):
-            level = WARN
-            waited = "yet" if self.inputs.last is None else f"for {self.inputs.idle_s():.0f} s"
-            message = f"no input {waited}: waiting for {', '.join(self.watch.topics.values())}"
-        elif silent:
-            level = WARN
-            message = f"no frames: {', '.join(self.watch.topics[n] for n in silent)} silent while the others arrive"
+        silent, warning = self.camera.silence(self.params["stale_input_s"], "no frames")
+        if warning is not None:
+            level, message = warning
         elif self.pipeline.paused:
             message = "paused"
         elif st.errors:
@@ -243,17 +211,14 @@ class TrackingNode(Node):
         latency = sorted(st.latency_s)
         tf_state = "on" if self.params["publish_tf"] and self.tf.available else "off"
         values = {
-            "input_rate_hz": f"{self.inputs.rate():.2f}",
+            "input_rate_hz": f"{self.camera.colour_rate.rate():.2f}",
             "processing_rate_hz": f"{self.outputs.rate():.2f}",
             "latency_ms": f"{1e3 * latency[len(latency) // 2]:.1f}" if latency else "n/a",
-            "frames_in": str(a.colour_in),
+            **self.camera.counts(st.dropped_frames),
             "frames_tracked": str(st.tracked),
-            "frames_dropped": str(st.dropped_frames + a.colour_dropped),
-            "frames_rejected": str(a.frames_rejected),
-            "frames_waiting": str(a.frames_waiting),
             "tracking_failures": str(st.tracking_failures),
             "gaussians": str(self.pipeline.slam.num_gaussians),
-            "silent_inputs": ", ".join(self.watch.topics[n] for n in silent) or "none",
+            "silent_inputs": self.camera.silent_names(silent),
             "tf": tf_state if self.tf.available else "off (tf2_msgs missing)",
             "map_alignment": self.alignment.value,
             **{f"dropped[{cause}]": str(n) for cause, n in a.rejected.items()},
