@@ -9,6 +9,7 @@ import numpy as np
 
 from sgs_slam_core.cli.args import MAX_IMAGE_SIDE, FloatRange, IntRange
 from sgs_slam_core.cli.errors import UsageError
+from sgs_slam_core.datasets.base import check_rigid
 from sgs_slam_core.errors import DatasetError, OutputError, ShapeError
 from sgs_slam_core.fileio import read_text
 from sgs_slam_core.geometry.views import orbit_poses
@@ -62,13 +63,7 @@ def read_c2w(path: Path) -> np.ndarray:  # [4, 4]
         raise ShapeError(f"{path}: expected 16 numbers (a 4x4 matrix), found {values.size}")
     pose = np.eye(4)
     pose[: values.size // 4] = values.reshape(-1, 4)
-    if not np.isfinite(pose).all():
-        raise ShapeError(f"{path}: the matrix holds NaN or inf")
-    if not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-4) or np.linalg.det(pose[:3, :3]) < 0:
-        raise ShapeError(f"{path}: the rotation part is not a rotation (orthonormal, determinant +1)")
-    if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0]):
-        raise ShapeError(f"{path}: the last row must be 0 0 0 1")
-    return pose
+    return check_rigid(pose, str(path), ShapeError, tolerance=1e-4)
 
 
 def orbit(views: MapViews, count: int, radius: float | None, elevation_deg: float) -> list[np.ndarray]:
@@ -99,11 +94,9 @@ def run(args: argparse.Namespace) -> int:
     if args.c2w is not None:
         poses = [read_c2w(args.c2w)]
     elif args.trajectory is not None:
-        poses = list(read_tum_trajectory(args.trajectory)[1])
+        poses = list(read_tum_trajectory(args.trajectory)[1])  # finite rotations, checked per line
         if not poses:
             raise DatasetError(f"{args.trajectory} holds no pose")
-        if not np.isfinite(np.stack(poses)).all():
-            raise DatasetError(f"{args.trajectory}: a pose is not finite (zero quaternion?)")
     else:
         poses = orbit(views, args.orbit, args.radius, args.elevation_deg)
     written = views.write(poses, k, args.out, args.semantic)

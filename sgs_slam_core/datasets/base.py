@@ -15,7 +15,7 @@ from typing import Protocol, runtime_checkable
 import cv2
 import numpy as np
 
-from sgs_slam_core.errors import DatasetError
+from sgs_slam_core.errors import DatasetError, SgsSlamError
 from sgs_slam_core.fileio import read_image
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.geometry.camera import Intrinsics
@@ -28,6 +28,7 @@ __all__ = [
     "FrameRecord",
     "RecordDataset",
     "check_frame_size",
+    "check_rigid",
     "read_color",
     "read_depth_png",
     "read_label_png",
@@ -169,11 +170,23 @@ def rigid_or_none(matrix: np.ndarray, where: str, tolerance: float = 1e-3) -> np
         raise DatasetError(f"{where}: expected a 4x4 matrix, got shape {matrix.shape}")
     if not np.isfinite(matrix).all():
         return None
+    return check_rigid(matrix, where, DatasetError, tolerance)
+
+
+def check_rigid(
+    matrix: np.ndarray, where: str, error: type[SgsSlamError], tolerance: float = 1e-3
+) -> np.ndarray:  # [4, 4]
+    """``matrix`` when it is a finite rigid transform, else ``error`` naming ``where`` and what is wrong.
+
+    Rigid: rotation part orthonormal with determinant +1 within ``tolerance``, last row 0 0 0 1.
+    """
+    if not np.isfinite(matrix).all():
+        raise error(f"{where}: the matrix holds NaN or inf")
     r = matrix[:3, :3]
     if not np.allclose(matrix[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
-        raise DatasetError(f"{where}: not a rigid transform (the last row must be 0 0 0 1, got {matrix[3].tolist()})")
+        raise error(f"{where}: not a rigid transform (the last row must be 0 0 0 1, got {matrix[3].tolist()})")
     if np.abs(r @ r.T - np.eye(3)).max() > tolerance or np.linalg.det(r) < 0:
-        raise DatasetError(f"{where}: not a rigid transform (the rotation part is not orthonormal with det +1)")
+        raise error(f"{where}: not a rigid transform (the rotation part is not a rotation: orthonormal, det +1)")
     return matrix
 
 

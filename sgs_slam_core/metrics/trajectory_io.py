@@ -47,6 +47,10 @@ def read_tum_trajectory(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
             rows.append([float(v) for v in parts[1:]])
         except ValueError as err:
             raise DatasetError(f"{path}:{lineno}: {err}") from err
+        if not np.isfinite(rows[-1]).all():
+            raise DatasetError(f"{path}:{lineno}: a value is not finite")
+        if np.linalg.norm(rows[-1][3:]) < 1e-9:
+            raise DatasetError(f"{path}:{lineno}: quaternion (qx qy qz qw) is zero")
     data = np.array(rows, dtype=np.float64).reshape(-1, 7)
     poses = np.tile(np.eye(4), (len(data), 1, 1))
     wxyz = np.concatenate([data[:, 6:7], data[:, 3:6]], axis=1)
