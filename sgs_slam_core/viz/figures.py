@@ -7,6 +7,8 @@ from pathlib import Path
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from sgs_slam_core.fileio import atomic_write
+
 __all__ = ["new_figure", "save_figure"]
 
 
@@ -18,5 +20,5 @@ def new_figure(width_in: float, height_in: float, dpi: int = 110) -> Figure:
 
 
 def save_figure(fig: Figure, path: str | Path) -> None:
-    """Write a PNG (white background)."""
-    fig.savefig(str(path), facecolor="white")
+    """Write a PNG (white background), atomically like every output (an ``OSError`` is an ``OutputError``)."""
+    atomic_write(path, lambda f: fig.savefig(f, format="png", facecolor="white"))
