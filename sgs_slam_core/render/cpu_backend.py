@@ -78,7 +78,7 @@ class _CppComposite(torch.autograd.Function):
         m, c, o, f = (t.detach().contiguous() for t in (means2d, conics, opacities, features))
         r = radii.detach().to(m.dtype).contiguous()
         tile = settings.cpu_tile(ext.max_tile(m.dtype == torch.float64))
-        gids, offsets = ext.bin_gaussians(m, r, depths.detach(), width, height, tile)
+        gids, offsets = ext.bin_gaussians(m, r, depths.detach(), width, height, tile, torch.get_num_threads())
         args = (width, height, tile, settings.alpha_min, settings.alpha_max, settings.extent_sigma**2,
                 settings.min_transmittance, torch.get_num_threads())  # fmt: skip
         *images, sil, t_final, count = ext.composite_forward(m, c, o, r, f, gids, offsets, list(groups), *args)
@@ -142,7 +142,7 @@ class _CppWorldIsotropicRender(torch.autograd.Function):
             m, ls, lo, col, sem, pose, *cam, s.near_plane, s.eps2d, s.alpha_min, s.extent_sigma, threads
         )
         tile = s.cpu_tile(ext.max_tile(m.dtype == torch.float64))
-        gids, offsets = ext.bin_gaussians(m2d, rad, feats[:, -1], k.width, k.height, tile)
+        gids, offsets = ext.bin_gaussians(m2d, rad, feats[:, -1], k.width, k.height, tile, threads)
         args = (k.width, k.height, tile, s.alpha_min, s.alpha_max, s.extent_sigma**2, s.min_transmittance,
                 threads)  # fmt: skip
         ctx.groups = [3, sem.shape[1], 1]
@@ -157,11 +157,13 @@ class _CppWorldIsotropicRender(torch.autograd.Function):
         ext, s = extension(), ctx.s
         rows = ext.composite_backward(m2d, con, op, rad, feats, gids, offsets, t_final, count, ctx.groups,
                                       *_grads(grad_out), *ctx.args)  # fmt: skip
-        need_pose = ctx.needs_input_grad[5]
+        need_params, need_pose = any(ctx.needs_input_grad[:5]), ctx.needs_input_grad[5]
         g_m, g_ls, g_lo, g_col, g_sem, g_pose = ext.world_isotropic_backward(
-            m, pose, mc, sc, op, rows, ctx.groups[1], need_pose, *ctx.cam, s.near_plane, s.eps2d,
+            m, pose, mc, sc, op, rows, ctx.groups[1], need_params, need_pose, *ctx.cam, s.near_plane, s.eps2d,
             torch.get_num_threads(),
         )  # fmt: skip
+        if not need_params:  # tracking: the map is fixed, only the pose gets a gradient
+            return None, None, None, None, None, g_pose if need_pose else None, None, None
         return g_m, g_ls[:, None], g_lo, g_col, g_sem, g_pose if need_pose else None, None, None
 
 

@@ -84,7 +84,7 @@ def map_window(
         with record_function("map.render"):
             out = render(opt.gaussians(), wf.data.intrinsics, wf.w2c, render_settings, with_semantics=semantic)
         with record_function("map.loss"):
-            loss = wf.weight * mapping_loss(out, wf.data, s, semantic)
+            loss = mapping_loss(out, wf.data, s, semantic, wf.weight)
         with record_function("map.backward"):
             loss.backward()
         with record_function("map.step"):

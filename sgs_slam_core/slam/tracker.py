@@ -13,6 +13,7 @@ from torch.profiler import record_function
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.render.api import render
 from sgs_slam_core.render.settings import RenderSettings
+from sgs_slam_core.slam.adam import FusedAdam
 from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.losses import TrackingLoss, tracking_loss
 from sgs_slam_core.slam.pose import PoseParameters
@@ -54,9 +55,7 @@ def track(
     fixed = gaussians.detach()
     device = fixed.device
     pose = PoseParameters(init_w2c, device)
-    adam = torch.optim.Adam(
-        [{"params": [pose.phi], "lr": s.lr_rotation}, {"params": [pose.rho], "lr": s.lr_translation}]
-    )
+    adam = FusedAdam({"phi": pose.phi, "rho": pose.rho}, {"phi": s.lr_rotation, "rho": s.lr_translation})
     check_every = s.stop_check_every or (5 if device.type == "cuda" else 1)
     best = _Best.start(device)
     converged, it = False, 0
@@ -77,7 +76,6 @@ def track(
             loss.total.backward()
         with record_function("track.step"):
             adam.step()
-            adam.zero_grad(set_to_none=True)
     value, pixels, residual = (float(v) for v in torch.stack([best.loss, best.pixels.float(), best.residual]).tolist())
     if pixels == 0:  # no pixel was ever explained: keep the initial pose
         return TrackResult(init_w2c.copy(), it, converged, float("inf"), 0.0, float("inf"), 0.0,

@@ -121,6 +121,22 @@ def test_deterministic_across_runs_and_thread_counts():
     assert all(torch.equal(ga[n], gb[n]) and torch.equal(ga[n], gc[n]) for n in ga)
 
 
+def test_binning_is_the_same_for_any_number_of_parts():
+    g = torch.Generator().manual_seed(4)
+    n = 5000
+    means2d = torch.rand(n, 2, generator=g) * torch.tensor([200.0, 150.0]) - 20  # some off-image
+    radii = torch.rand(n, generator=g) * 12
+    radii[::7] = 0  # culled
+    depths = torch.rand(n, generator=g) * 5 + 0.1
+    depths[::11] = depths[3]  # ties keep index order
+    ext = cpu_backend.extension()
+    one = ext.bin_gaussians(means2d, radii, depths, 160, 120, 16, 1)
+    assert one[0].numel() > n
+    for parts in (2, 3, 7):
+        many = ext.bin_gaussians(means2d, radii, depths, 160, 120, 16, parts)
+        assert torch.equal(one[0], many[0]) and torch.equal(one[1], many[1])
+
+
 def test_auto_picks_the_compiled_backend_and_falls_back_with_a_reason(monkeypatch):
     assert resolve_backend("auto", torch.device("cpu")) == "cpu"
     monkeypatch.setattr(cpu_backend.EXTENSION, "_module", None)

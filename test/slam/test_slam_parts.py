@@ -76,11 +76,11 @@ def test_optimizer_prune_keeps_adam_moments_aligned():
     loss = sum((v * (i + 1)).sum() for i, v in enumerate(opt.params.values()))
     loss.backward()
     opt.step()
-    moments = opt.adam.state[opt.params["means"]]["exp_avg"].clone()
+    moments = opt.adam.state["means"].exp_avg.clone()
     keep = torch.arange(10) % 3 != 0
     assert opt.prune(keep) == 4
     new = opt.params["means"]
-    assert new.shape == (6, 3) and torch.equal(opt.adam.state[new]["exp_avg"], moments[keep])
+    assert new.shape == (6, 3) and torch.equal(opt.adam.state["means"].exp_avg, moments[keep])
     assert len(opt.result()) == 6 and opt.result().labels.shape == (6,)
     before = new.detach().clone()
     new.sum().backward()

@@ -820,28 +820,52 @@ void sort_by_depth(std::vector<uint64_t>& keys) {
   }
 }
 
+// Footprint tile rectangle and sort key of Gaussian g; false when it touches no pixel.
+template <typename T>
+inline bool tile_rect(const T* mp, const T* rp, const T* dp, int64_t g, int64_t width, int64_t height, int64_t tile,
+                      int32_t* rect, uint64_t* key) {
+  const double u = mp[2 * g], v = mp[2 * g + 1], rad = rp[g];
+  if (!(rad > 0) || !std::isfinite(u) || !std::isfinite(v)) return false;
+  const double xl = std::ceil(u - rad), xh = std::floor(u + rad), yl = std::ceil(v - rad), yh = std::floor(v + rad);
+  if (xl > width - 1 || xh < 0 || yl > height - 1 || yh < 0 || xl > xh || yl > yh) return false;
+  auto clampi = [](double x, double hi) { return static_cast<int32_t>(std::min(std::max(x, 0.0), hi)); };
+  rect[0] = clampi(xl, width - 1) / static_cast<int32_t>(tile);
+  rect[1] = clampi(xh, width - 1) / static_cast<int32_t>(tile);
+  rect[2] = clampi(yl, height - 1) / static_cast<int32_t>(tile);
+  rect[3] = clampi(yh, height - 1) / static_cast<int32_t>(tile);
+  // Visible Gaussians have depth > near > 0, so the float bits sort like the values.
+  const float depth = static_cast<float>(dp[g]);
+  uint32_t bits;
+  std::memcpy(&bits, &depth, sizeof(bits));
+  *key = (static_cast<uint64_t>(bits) << 32) | static_cast<uint64_t>(g);
+  return true;
+}
+
 template <typename T>
 std::vector<torch::Tensor> bin_impl(const T* mp, const T* rp, const T* dp, int64_t n, int64_t width, int64_t height,
-                                    int64_t tile) {
+                                    int64_t tile, int threads) {
   const int64_t tiles_x = (width + tile - 1) / tile, tiles_y = (height + tile - 1) / tile;
   std::vector<int32_t> rect(4 * static_cast<size_t>(n));
-  std::vector<uint64_t> keys;
-  keys.reserve(static_cast<size_t>(n));
-  for (int64_t g = 0; g < n; ++g) {
-    const double u = mp[2 * g], v = mp[2 * g + 1], rad = rp[g];
-    if (!(rad > 0) || !std::isfinite(u) || !std::isfinite(v)) continue;
-    const double xl = std::ceil(u - rad), xh = std::floor(u + rad), yl = std::ceil(v - rad), yh = std::floor(v + rad);
-    if (xl > width - 1 || xh < 0 || yl > height - 1 || yh < 0 || xl > xh || yl > yh) continue;
-    auto clampi = [](double x, double hi) { return static_cast<int32_t>(std::min(std::max(x, 0.0), hi)); };
-    rect[4 * g + 0] = clampi(xl, width - 1) / static_cast<int32_t>(tile);
-    rect[4 * g + 1] = clampi(xh, width - 1) / static_cast<int32_t>(tile);
-    rect[4 * g + 2] = clampi(yl, height - 1) / static_cast<int32_t>(tile);
-    rect[4 * g + 3] = clampi(yh, height - 1) / static_cast<int32_t>(tile);
-    // Visible Gaussians have depth > near > 0, so the float bits sort like the values.
-    const float depth = static_cast<float>(dp[g]);
-    uint32_t bits;
-    std::memcpy(&bits, &depth, sizeof(bits));
-    keys.push_back((static_cast<uint64_t>(bits) << 32) | static_cast<uint64_t>(g));
+  // Keys of the Gaussians that touch the image, in ascending id order: part p of `threads` equal id
+  // ranges keeps its keys in order, and the parts are concatenated in order (the same keys for any
+  // number of threads the runtime grants).
+  std::vector<uint64_t> all(static_cast<size_t>(n));
+  std::vector<int64_t> start(static_cast<size_t>(threads) + 1, 0);
+  auto range = [&](int64_t p) { return std::make_pair(n * p / threads, n * (p + 1) / threads); };
+#pragma omp parallel for num_threads(threads) schedule(static, 1)
+  for (int64_t p = 0; p < threads; ++p) {
+    const auto [lo, hi] = range(p);
+    int64_t out = lo;
+    for (int64_t g = lo; g < hi; ++g)
+      if (tile_rect(mp, rp, dp, g, width, height, tile, &rect[4 * g], &all[out])) ++out;
+    start[p + 1] = out - lo;
+  }
+  for (int64_t p = 0; p < threads; ++p) start[p + 1] += start[p];
+  std::vector<uint64_t> keys(static_cast<size_t>(start[threads]));
+#pragma omp parallel for num_threads(threads) schedule(static, 1)
+  for (int64_t p = 0; p < threads; ++p) {
+    const int64_t lo = range(p).first;
+    std::copy(all.begin() + lo, all.begin() + lo + (start[p + 1] - start[p]), keys.begin() + start[p]);
   }
   sort_by_depth(keys);
   auto offsets = torch::zeros({tiles_x * tiles_y + 1}, torch::kInt64);
@@ -865,7 +889,7 @@ std::vector<torch::Tensor> bin_impl(const T* mp, const T* rp, const T* dp, int64
 }
 
 std::vector<torch::Tensor> bin_gaussians(torch::Tensor means2d, torch::Tensor radii, torch::Tensor depths, int64_t width,
-                                         int64_t height, int64_t tile) {
+                                         int64_t height, int64_t tile, int64_t threads) {
   TORCH_CHECK(means2d.device().is_cpu() && radii.device().is_cpu() && depths.device().is_cpu(), "CPU tensors only");
   auto m = means2d.contiguous();
   auto r = radii.contiguous().to(m.scalar_type());
@@ -873,7 +897,7 @@ std::vector<torch::Tensor> bin_gaussians(torch::Tensor means2d, torch::Tensor ra
   std::vector<torch::Tensor> out;
   AT_DISPATCH_FLOATING_TYPES(m.scalar_type(), "bin_gaussians", [&] {
     out = bin_impl<scalar_t>(m.data_ptr<scalar_t>(), r.data_ptr<scalar_t>(), d.data_ptr<scalar_t>(), m.size(0), width,
-                             height, tile);
+                             height, tile, static_cast<int>(std::max<int64_t>(threads, 1)));
   });
   return out;
 }
@@ -1006,6 +1030,9 @@ void prepare_world_all(const Camera& k, int64_t n, int64_t ns, const T* m, const
 }
 
 // Per Gaussian: projection backward and the chain through the transform and the activations.
+// Gaussians whose row is all zero (culled, or blended by no pixel with a gradient) get exact zeros
+// without the arithmetic. Null parameter outputs (pgm == nullptr: tracking, whose map is fixed)
+// are not written; pmc (camera-frame mean gradients, for the pose) only when not null.
 template <typename T>
 void world_backward_all(const Camera& k, int64_t n, int64_t ns, int64_t stride, const T* P, const T* mc, const T* sc,
                         const T* op, const T* r, T* pgm, T* pls, T* plo, T* pcol, T* psem, T* pmc, int threads) {
@@ -1013,13 +1040,17 @@ void world_backward_all(const Camera& k, int64_t n, int64_t ns, int64_t stride, 
 #pragma omp parallel for num_threads(threads) schedule(static)
   for (int64_t g = 0; g < n; ++g) {
     const T* row = r + stride * g;
-    T gc[3], gs;
-    project_one_backward(pk, mc + 3 * g, sc[g], row, row + 2, row[stride - 1], gc, &gs);
-    for (int j = 0; j < 3; ++j) pgm[3 * g + j] = P[j] * gc[0] + P[4 + j] * gc[1] + P[8 + j] * gc[2];  // R^T g
-    pls[g] = gs * sc[g];
-    plo[g] = row[5] * op[g] * (T(1) - op[g]);
-    for (int j = 0; j < 3; ++j) pcol[3 * g + j] = row[kGeomGrads + j];
-    for (int64_t j = 0; j < ns; ++j) psem[ns * g + j] = row[kGeomGrads + 3 + j];
+    bool zero = true;
+    for (int64_t c = 0; c < stride; ++c) zero &= row[c] == T(0);
+    T gc[3] = {T(0), T(0), T(0)}, gs = T(0);
+    if (!zero) project_one_backward(pk, mc + 3 * g, sc[g], row, row + 2, row[stride - 1], gc, &gs);
+    if (pgm) {
+      for (int j = 0; j < 3; ++j) pgm[3 * g + j] = P[j] * gc[0] + P[4 + j] * gc[1] + P[8 + j] * gc[2];  // R^T g
+      pls[g] = gs * sc[g];
+      plo[g] = row[5] * op[g] * (T(1) - op[g]);
+      for (int j = 0; j < 3; ++j) pcol[3 * g + j] = row[kGeomGrads + j];
+      for (int64_t j = 0; j < ns; ++j) psem[ns * g + j] = row[kGeomGrads + 3 + j];
+    }
     if (pmc) {
       pmc[3 * g] = gc[0];
       pmc[3 * g + 1] = gc[1];
@@ -1074,11 +1105,13 @@ std::vector<torch::Tensor> prepare_world_isotropic(torch::Tensor means, torch::T
 
 // Gradients of the map's parameters from the compositor's per-Gaussian rows [N, 6 + D] (u, v, A,
 // B, C, opacity, colour, semantics, depth): (d means [N, 3], d log_scales [N], d logit_opacities [N],
-// d colors [N, 3], d semantics [N, S], d w2c [4, 4] (zeros unless need_pose)). The pose gradient is
-// summed over the Gaussians in index order (deterministic for any thread count).
+// d colors [N, 3], d semantics [N, S] (those five empty unless need_params), d w2c [4, 4] (zeros unless
+// need_pose)). The pose gradient is summed over the Gaussians in index order (deterministic for any
+// thread count).
 std::vector<torch::Tensor> world_isotropic_backward(torch::Tensor means, torch::Tensor w2c, torch::Tensor means_cam,
                                                     torch::Tensor scales, torch::Tensor opacities, torch::Tensor rows,
-                                                    int64_t num_semantic, bool need_pose, double fx, double fy,
+                                                    int64_t num_semantic, bool need_params, bool need_pose, double fx,
+                                                    double fy,
                                                     double cx, double cy, int64_t width, int64_t height, double near,
                                                     double eps2d, int64_t threads) {
   means = means.contiguous();
@@ -1088,8 +1121,9 @@ std::vector<torch::Tensor> world_isotropic_backward(torch::Tensor means, torch::
   TORCH_CHECK(d == 3 + ns + 1 && rows.size(0) == n, "world_isotropic_backward: rows must be [N, 6 + 3 + S + 1]");
   const Camera k{fx, fy, cx, cy, width, height, near, eps2d, 0.0, 0.0};
   auto opts = means.options();
-  auto g_m = torch::empty({n, 3}, opts), g_ls = torch::empty({n}, opts), g_lo = torch::empty({n}, opts);
-  auto g_col = torch::empty({n, 3}, opts), g_sem = torch::empty({n, ns}, opts);
+  const int64_t np = need_params ? n : 0;  // no parameter gradients: empty outputs
+  auto g_m = torch::empty({np, 3}, opts), g_ls = torch::empty({np}, opts), g_lo = torch::empty({np}, opts);
+  auto g_col = torch::empty({np, 3}, opts), g_sem = torch::empty({np, ns}, opts);
   auto g_w2c = torch::zeros({4, 4}, opts);
   auto g_mc = torch::empty({need_pose ? n : 0, 3}, opts);
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "world_isotropic_backward", [&] {
@@ -1099,14 +1133,18 @@ std::vector<torch::Tensor> world_isotropic_backward(torch::Tensor means, torch::
     const T* sc = scales.data_ptr<T>();
     const T* op = opacities.data_ptr<T>();
     const T* r = rows.data_ptr<T>();
-    T *pgm = g_m.data_ptr<T>(), *pls = g_ls.data_ptr<T>(), *plo = g_lo.data_ptr<T>();
-    T *pcol = g_col.data_ptr<T>(), *psem = g_sem.data_ptr<T>();
+    T* pgm = need_params ? g_m.data_ptr<T>() : nullptr;
+    T* pls = need_params ? g_ls.data_ptr<T>() : nullptr;
+    T* plo = need_params ? g_lo.data_ptr<T>() : nullptr;
+    T* pcol = need_params ? g_col.data_ptr<T>() : nullptr;
+    T* psem = need_params ? g_sem.data_ptr<T>() : nullptr;
     T* pmc = need_pose ? g_mc.data_ptr<T>() : nullptr;
     world_backward_all<T>(k, n, ns, stride, P, mc, sc, op, r, pgm, pls, plo, pcol, psem, pmc, static_cast<int>(threads));
     if (need_pose) {  // d R_ij = sum_g d mc_i m_j, d t_i = sum_g d mc_i
       const T* m = means.data_ptr<T>();
       double acc[12] = {0};
-      for (int64_t g = 0; g < n; ++g)
+      for (int64_t g = 0; g < n; ++g) {
+        if (pmc[3 * g] == T(0) && pmc[3 * g + 1] == T(0) && pmc[3 * g + 2] == T(0)) continue;  // adds exact zeros
         for (int i = 0; i < 3; ++i) {
           const double gi = pmc[3 * g + i];
           acc[4 * i] += gi * m[3 * g];
@@ -1114,6 +1152,7 @@ std::vector<torch::Tensor> world_isotropic_backward(torch::Tensor means, torch::
           acc[4 * i + 2] += gi * m[3 * g + 2];
           acc[4 * i + 3] += gi;
         }
+      }
       T* pw = g_w2c.data_ptr<T>();
       for (int i = 0; i < 12; ++i) pw[i] = static_cast<T>(acc[i]);
     }

@@ -1,0 +1,67 @@
+"""Adam for a few named tensors, each with its own learning rate, in one fused kernel call per tensor.
+
+``torch.optim.Adam(fused=True)`` runs the same kernel (``torch._fused_adam_``) but spends more time
+around it than in it on the SLAM's small steps: measured on 2 cores, 55k Gaussians x 5 fields,
+0.45 ms per step against 0.18 ms for the calls here (a mapping iteration is ~11 ms), and 0.5 ms
+against ~0.05 ms for tracking's pose (6 numbers, ~15 steps a frame). The update is the library's:
+same kernel, same step counting (incremented before the update, as ``torch.optim.Adam`` does).
+The SLAM runs on the CPU or CUDA, which both have the kernel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+__all__ = ["AdamMoments", "FusedAdam"]
+
+BETAS = (0.9, 0.999)
+
+
+@dataclass
+class AdamMoments:
+    """One tensor's optimiser state."""
+
+    exp_avg: Tensor  # like the parameter
+    exp_avg_sq: Tensor  # like the parameter
+    step: Tensor  # [] float32 on the parameter's device
+
+
+class FusedAdam:
+    """Adam (betas 0.9, 0.999, no weight decay) over ``params[name]`` with ``lrs[name]``.
+
+    ``params`` is held by reference: :meth:`replace` swaps a tensor (e.g. after pruning) together with
+    its sliced moments.
+    """
+
+    def __init__(self, params: dict[str, Tensor], lrs: dict[str, float], eps: float = 1e-8) -> None:
+        self.params, self.lrs, self.eps = params, lrs, eps
+        self.state: dict[str, AdamMoments] = {}
+
+    def step(self) -> None:
+        """One update of every tensor that has a gradient, then the gradients are cleared."""
+        with torch.no_grad():
+            for name, p in self.params.items():
+                if p.grad is None:
+                    continue
+                s = self.state.get(name)
+                if s is None:
+                    s = AdamMoments(torch.zeros_like(p), torch.zeros_like(p), torch.zeros((), device=p.device))
+                    self.state[name] = s
+                s.step += 1
+                torch._fused_adam_(  # the kernel behind torch.optim.Adam(fused=True)
+                    [p], [p.grad], [s.exp_avg], [s.exp_avg_sq], [], [s.step], lr=self.lrs[name], beta1=BETAS[0],
+                    beta2=BETAS[1], weight_decay=0.0, eps=self.eps, amsgrad=False, maximize=False,
+                )  # fmt: skip
+                p.grad = None
+
+    def replace(self, name: str, new: Tensor, rows: Tensor | None = None) -> None:
+        """Swap ``params[name]`` for ``new``; its moments keep ``rows`` (a [N] bool or index) when given."""
+        self.params[name] = new
+        s = self.state.get(name)
+        if s is not None and rows is not None:
+            self.state[name] = AdamMoments(s.exp_avg[rows], s.exp_avg_sq[rows], s.step)
+        elif s is not None:
+            del self.state[name]
