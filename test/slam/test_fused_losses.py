@@ -73,5 +73,8 @@ def test_mapping_loss_without_gradients_and_without_valid_depth() -> None:
     out, frame = _case(3, False)
     out = RenderOutput(*(t.detach() for t in (out.color, out.depth, out.silhouette, out.semantic)))
     frame = dataclasses.replace(frame, depth=torch.zeros_like(frame.depth))
-    fast, ref = mapping_loss(out, frame, MappingSettings(), True), mapping_loss_reference(out, frame, MappingSettings(), True)
+    fast, ref = (
+        mapping_loss(out, frame, MappingSettings(), True),
+        mapping_loss_reference(out, frame, MappingSettings(), True),
+    )
     torch.testing.assert_close(fast, ref)
