@@ -27,6 +27,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <memory>
 #include <type_traits>
 #include <vector>
 
@@ -255,14 +256,17 @@ struct SplatScene {
   int channels;
 };
 
+// Records of the Gaussians with a footprint (radius > 0) only: binning lists no other, so the rest
+// are never read and stay uninitialised (no pass over memory that nothing uses).
 template <typename T>
-std::vector<SplatRecord<T>> splat_records(int64_t n, const T* m2d, const T* con, const T* op, const T* rad,
-                                          int threads) {
-  std::vector<SplatRecord<T>> rec(static_cast<size_t>(n));
+std::unique_ptr<SplatRecord<T>[]> splat_records(int64_t n, const T* m2d, const T* con, const T* op, const T* rad,
+                                                int threads) {
+  std::unique_ptr<SplatRecord<T>[]> rec(new SplatRecord<T>[static_cast<size_t>(n)]);
 #pragma omp parallel for num_threads(threads) schedule(static)
   for (int64_t g = 0; g < n; ++g)
-    rec[g] = {{m2d[2 * g], m2d[2 * g + 1], T(-0.5) * con[3 * g], -con[3 * g + 1], T(-0.5) * con[3 * g + 2], op[g]},
-              rad[g], T(0)};
+    if (rad[g] > T(0))
+      rec[g] = {{m2d[2 * g], m2d[2 * g + 1], T(-0.5) * con[3 * g], -con[3 * g + 1], T(-0.5) * con[3 * g + 2], op[g]},
+                rad[g], T(0)};
   return rec;
 }
 
@@ -657,6 +661,7 @@ void reduce_rows(const T* rows, const int32_t* gids, int64_t num_isects, int64_t
   {
     const int64_t parts = omp_get_num_threads(), part = omp_get_thread_num();
     const int64_t lo = n * part / parts, hi = n * (part + 1) / parts;
+    std::fill(out + lo * stride, out + hi * stride, T(0));  // each thread zeroes the rows it sums into
     for (int64_t i = 0; i < num_isects; ++i) {
       const int64_t g = gids[i];
       if (g < lo || g >= hi) continue;
@@ -903,7 +908,7 @@ std::vector<torch::Tensor> bin_gaussians(torch::Tensor means2d, torch::Tensor ra
 }
 
 template <typename T>
-std::vector<SplatRecord<T>> records(const torch::Tensor& m2d, const torch::Tensor& con, const torch::Tensor& op,
+std::unique_ptr<SplatRecord<T>[]> records(const torch::Tensor& m2d, const torch::Tensor& con, const torch::Tensor& op,
                                     const torch::Tensor& rad, int64_t threads) {
   return splat_records<T>(m2d.size(0), m2d.data_ptr<T>(), con.data_ptr<T>(), op.data_ptr<T>(), rad.data_ptr<T>(),
                           static_cast<int>(threads));
@@ -954,7 +959,7 @@ std::vector<torch::Tensor> composite_forward(torch::Tensor means2d, torch::Tenso
     const FrameOut<scalar_t> out{planes_of(groups, bases), sil.data_ptr<scalar_t>(), t_final.data_ptr<scalar_t>(),
                                  count.data_ptr<int32_t>()};
     const auto rec = records<scalar_t>(means2d, conics, opacities, radii, threads);
-    forward_all<scalar_t>(s, off, gid, {rec.data(), features.data_ptr<scalar_t>(), s.channels}, out,
+    forward_all<scalar_t>(s, off, gid, {rec.get(), features.data_ptr<scalar_t>(), s.channels}, out,
                           static_cast<int>(threads));
   });
   outs.insert(outs.end(), {sil, t_final, count});
@@ -988,7 +993,7 @@ torch::Tensor composite_backward(torch::Tensor means2d, torch::Tensor conics, to
   }
   const int64_t stride = kGeomGrads + features.size(1);
   auto rows = torch::empty({gids.size(0), stride}, features.options());  // every row written by its tile
-  auto out = torch::zeros({means2d.size(0), stride}, features.options());
+  auto out = torch::empty({means2d.size(0), stride}, features.options());  // zeroed by reduce_rows
   const int64_t* off = offsets.data_ptr<int64_t>();
   const int32_t* gid = gids.data_ptr<int32_t>();
   AT_DISPATCH_FLOATING_TYPES(features.scalar_type(), "composite_backward", [&] {
@@ -996,7 +1001,7 @@ torch::Tensor composite_backward(torch::Tensor means2d, torch::Tensor conics, to
     std::vector<const scalar_t*> bases;
     for (auto& g : grads) bases.push_back(g.defined() ? g.data_ptr<scalar_t>() : nullptr);
     const auto rec = records<scalar_t>(means2d, conics, opacities, radii, threads);
-    backward_all<scalar_t>(s, off, gid, {rec.data(), features.data_ptr<scalar_t>(), s.channels},
+    backward_all<scalar_t>(s, off, gid, {rec.get(), features.data_ptr<scalar_t>(), s.channels},
                            planes_of(groups, bases), g_sil.defined() ? g_sil.data_ptr<scalar_t>() : nullptr,
                            t_final.data_ptr<scalar_t>(), count.data_ptr<int32_t>(), rows.data_ptr<scalar_t>(),
                            static_cast<int>(threads));
