@@ -815,12 +815,18 @@ inline void project_one_backward(const Proj<T>& k, const T* mc, T scale, const T
 // Stable LSD radix sort of (depth bits << 32 | id) keys on their upper 32 bits: the ids are pushed in
 // ascending order, so the result equals sorting the whole keys (about 10x faster than std::sort).
 void sort_by_depth(std::vector<uint64_t>& keys) {
+  // The four digits' histograms in one read; a digit all keys share is not scattered (it would
+  // leave the order as it is), which skips most passes of the high exponent bits.
+  std::vector<size_t> start(4 * 257, 0);
+  for (const uint64_t k : keys)
+    for (int d = 0; d < 4; ++d) ++start[d * 257 + ((k >> (32 + 8 * d)) & 0xffu) + 1];
   std::vector<uint64_t> tmp(keys.size());
-  for (int shift = 32; shift < 64; shift += 8) {
-    size_t start[257] = {0};
-    for (const uint64_t k : keys) ++start[((k >> shift) & 0xffu) + 1];
-    for (int b = 0; b < 256; ++b) start[b + 1] += start[b];
-    for (const uint64_t k : keys) tmp[start[(k >> shift) & 0xffu]++] = k;
+  for (int d = 0; d < 4; ++d) {
+    size_t* s = &start[d * 257];
+    if (*std::max_element(s + 1, s + 257) == keys.size()) continue;
+    for (int b = 0; b < 256; ++b) s[b + 1] += s[b];
+    const int shift = 32 + 8 * d;
+    for (const uint64_t k : keys) tmp[s[(k >> shift) & 0xffu]++] = k;
     keys.swap(tmp);
   }
 }
@@ -849,44 +855,59 @@ inline bool tile_rect(const T* mp, const T* rp, const T* dp, int64_t g, int64_t 
 template <typename T>
 std::vector<torch::Tensor> bin_impl(const T* mp, const T* rp, const T* dp, int64_t n, int64_t width, int64_t height,
                                     int64_t tile, int threads) {
-  const int64_t tiles_x = (width + tile - 1) / tile, tiles_y = (height + tile - 1) / tile;
-  std::vector<int32_t> rect(4 * static_cast<size_t>(n));
-  // Keys of the Gaussians that touch the image, in ascending id order: part p of `threads` equal id
-  // ranges keeps its keys in order, and the parts are concatenated in order (the same keys for any
-  // number of threads the runtime grants).
-  std::vector<uint64_t> all(static_cast<size_t>(n));
+  const int64_t tiles_x = (width + tile - 1) / tile, tiles_y = (height + tile - 1) / tile, num_tiles = tiles_x * tiles_y;
+  using Rect = std::array<int32_t, 4>;
+  // Pass 1, over `threads` equal id ranges in parallel: the Gaussians that touch the image (ascending
+  // ids within a range), their sort keys and tile rectangles, and each range's tile counts. The
+  // ranges concatenated in order give the same list for any number of threads the runtime grants.
+  std::unique_ptr<uint64_t[]> key_all(new uint64_t[static_cast<size_t>(n)]);
+  std::unique_ptr<Rect[]> rect_all(new Rect[static_cast<size_t>(n)]);
   std::vector<int64_t> start(static_cast<size_t>(threads) + 1, 0);
-  auto range = [&](int64_t p) { return std::make_pair(n * p / threads, n * (p + 1) / threads); };
+  std::vector<int64_t> counts(static_cast<size_t>(threads * num_tiles), 0);
+  auto first = [&](int64_t p) { return n * p / threads; };
 #pragma omp parallel for num_threads(threads) schedule(static, 1)
   for (int64_t p = 0; p < threads; ++p) {
-    const auto [lo, hi] = range(p);
-    int64_t out = lo;
-    for (int64_t g = lo; g < hi; ++g)
-      if (tile_rect(mp, rp, dp, g, width, height, tile, &rect[4 * g], &all[out])) ++out;
-    start[p + 1] = out - lo;
+    int64_t out = first(p);
+    int64_t* count = &counts[p * num_tiles];
+    for (int64_t g = first(p); g < first(p + 1); ++g) {
+      Rect& r = rect_all[out];
+      if (!tile_rect(mp, rp, dp, g, width, height, tile, r.data(), &key_all[out])) continue;
+      for (int64_t ty = r[2]; ty <= r[3]; ++ty)
+        for (int64_t tx = r[0]; tx <= r[1]; ++tx) ++count[ty * tiles_x + tx];
+      ++out;
+    }
+    start[p + 1] = out - first(p);
   }
   for (int64_t p = 0; p < threads; ++p) start[p + 1] += start[p];
-  std::vector<uint64_t> keys(static_cast<size_t>(start[threads]));
+  // Compact lists; a key's low half becomes its position there, which orders ties as the ids do.
+  const int64_t kept = start[threads];
+  std::vector<uint64_t> keys(static_cast<size_t>(kept));
+  std::vector<Rect> rects(static_cast<size_t>(kept));
+  std::vector<int32_t> ids(static_cast<size_t>(kept));
 #pragma omp parallel for num_threads(threads) schedule(static, 1)
-  for (int64_t p = 0; p < threads; ++p) {
-    const int64_t lo = range(p).first;
-    std::copy(all.begin() + lo, all.begin() + lo + (start[p + 1] - start[p]), keys.begin() + start[p]);
-  }
+  for (int64_t p = 0; p < threads; ++p)
+    for (int64_t i = 0; i < start[p + 1] - start[p]; ++i) {
+      const int64_t from = first(p) + i, to = start[p] + i;
+      ids[to] = static_cast<int32_t>(key_all[from] & 0xffffffffu);
+      keys[to] = (key_all[from] & ~uint64_t(0xffffffffu)) | static_cast<uint64_t>(to);
+      rects[to] = rect_all[from];
+    }
   sort_by_depth(keys);
-  auto offsets = torch::zeros({tiles_x * tiles_y + 1}, torch::kInt64);
+  auto offsets = torch::empty({num_tiles + 1}, torch::kInt64);
   int64_t* off = offsets.data_ptr<int64_t>();
-  for (uint64_t key : keys) {
-    const int32_t* r = &rect[4 * (key & 0xffffffffu)];
-    for (int64_t ty = r[2]; ty <= r[3]; ++ty)
-      for (int64_t tx = r[0]; tx <= r[1]; ++tx) off[ty * tiles_x + tx + 1] += 1;
+  off[0] = 0;
+  for (int64_t t = 0; t < num_tiles; ++t) {
+    int64_t c = 0;
+    for (int64_t p = 0; p < threads; ++p) c += counts[p * num_tiles + t];
+    off[t + 1] = off[t] + c;
   }
-  for (int64_t t = 0; t < tiles_x * tiles_y; ++t) off[t + 1] += off[t];
-  auto gids = torch::empty({off[tiles_x * tiles_y]}, torch::kInt32);
+  auto gids = torch::empty({off[num_tiles]}, torch::kInt32);
   int32_t* gp = gids.data_ptr<int32_t>();
-  std::vector<int64_t> cursor(off, off + tiles_x * tiles_y);
-  for (uint64_t key : keys) {
-    const int32_t g = static_cast<int32_t>(key & 0xffffffffu);
-    const int32_t* r = &rect[4 * g];
+  std::vector<int64_t> cursor(off, off + num_tiles);
+  for (const uint64_t key : keys) {
+    const int64_t at = static_cast<int64_t>(key & 0xffffffffu);
+    const Rect& r = rects[at];
+    const int32_t g = ids[at];
     for (int64_t ty = r[2]; ty <= r[3]; ++ty)
       for (int64_t tx = r[0]; tx <= r[1]; ++tx) gp[cursor[ty * tiles_x + tx]++] = g;
   }
