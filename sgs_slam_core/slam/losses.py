@@ -9,8 +9,8 @@ from torch import Tensor
 
 from sgs_slam_core.render.api import RenderOutput
 from sgs_slam_core.slam.frame_data import FrameTensors
-from sgs_slam_core.slam.fused_losses import fused_mapping_loss, fused_tracking_loss
-from sgs_slam_core.slam.photometric import photometric_loss, resolve_photometric_backend
+from sgs_slam_core.slam.fused_losses import fused_available, fused_mapping_loss, fused_tracking_loss
+from sgs_slam_core.slam.photometric import photometric_loss
 from sgs_slam_core.slam.settings import MappingSettings, TrackingSettings
 
 __all__ = [
@@ -42,13 +42,14 @@ def _semantic_term(use_semantics: bool, frame: FrameTensors, weight: float) -> b
 
 
 def tracking_loss(out: RenderOutput, frame: FrameTensors, s: TrackingSettings, use_semantics: bool) -> TrackingLoss:
-    """:func:`tracking_loss_reference` as one autograd node (:mod:`sgs_slam_core.slam.fused_losses`)."""
-    mask = tracking_mask(out, frame, s.sil_threshold)
-    pixels = mask.sum()
+    """:func:`tracking_loss_reference`; in one C++ call and one autograd node on the CPU (``fused_losses``)."""
+    if not fused_available(out.depth.device):
+        return tracking_loss_reference(out, frame, s, use_semantics)
     semantic = _semantic_term(use_semantics, frame, s.weight_semantic)
-    total, depth_sum = fused_tracking_loss(
-        out.color, out.semantic if semantic else None, out.depth, mask, frame.rgb,
-        frame.semantic if semantic else None, frame.depth, (s.weight_depth, s.weight_color, s.weight_semantic),
+    total, pixels, depth_sum = fused_tracking_loss(
+        out.color, out.semantic if semantic else None, out.depth, out.silhouette, frame.valid, frame.rgb,
+        frame.semantic if semantic else None, frame.depth, s.sil_threshold,
+        (s.weight_depth, s.weight_color, s.weight_semantic),
     )  # fmt: skip
     residual = torch.where(pixels > 0, depth_sum / pixels.clamp(min=1), float("inf"))
     return TrackingLoss(total, pixels, residual)
@@ -77,8 +78,8 @@ def tracking_loss_reference(
 def mapping_loss(
     out: RenderOutput, frame: FrameTensors, s: MappingSettings, use_semantics: bool, scale: float = 1.0
 ) -> Tensor:
-    """``scale`` x :func:`mapping_loss_reference`; one autograd node where the fused SSIM runs (CPU)."""
-    if resolve_photometric_backend("auto", out.color.device) != "fused":
+    """``scale`` x :func:`mapping_loss_reference`; one autograd node on the CPU (``fused_losses``)."""
+    if not fused_available(out.color.device):
         return scale * mapping_loss_reference(out, frame, s, use_semantics)
     semantic = _semantic_term(use_semantics, frame, s.weight_semantic)
     rgb, sem_target = frame.rgb, frame.semantic if semantic else None

@@ -1,4 +1,5 @@
-// Fused photometric term of the mapping loss on the CPU: loss and gradient in one call.
+// The SLAM's image losses on the CPU, each value and gradient in one call: the photometric term of the
+// mapping loss (below) and tracking's masked L1 sums (tracking_l1, at the end).
 //
 //   L = (1 - w) mean|x - y| + w (1 - mean SSIM(x, y))
 //
@@ -258,6 +259,54 @@ void gradient_pass(const Images<T>& im, const std::vector<T>& taps, const T* d_m
   }
 }
 
+template <typename T>
+struct L1Inputs {
+  const T *color, *semantic, *depth, *silhouette, *rgb, *sem_target, *depth_target;
+  const bool* valid;
+  int64_t h, w, ns;
+};
+
+struct L1Sums {
+  double depth = 0, color = 0, semantic = 0;
+  int64_t pixels = 0;
+};
+
+template <typename T>
+L1Sums tracking_l1_sums(const L1Inputs<T>& in, T thr, T wd, T wc, T ws, T* gc, T* gs, T* gd, int threads) {
+  auto sign = [](T x) { return static_cast<T>((x > 0) - (x < 0)); };
+  std::vector<L1Sums> rows(static_cast<size_t>(in.h));
+  const int64_t ns = in.ns;
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (int64_t y = 0; y < in.h; ++y) {
+    L1Sums r;
+    for (int64_t x = 0; x < in.w; ++x) {
+      const int64_t i = y * in.w + x;
+      const bool inside = in.valid[i] && in.silhouette[i] > thr && std::isfinite(in.depth[i]);
+      r.pixels += inside;
+      const T dd = inside ? in.depth[i] - in.depth_target[i] : T(0);
+      r.depth += std::abs(dd);
+      gd[i] = wd * sign(dd);
+      for (int64_t k = 0; k < 3; ++k) {
+        const T e = inside ? in.color[3 * i + k] - in.rgb[3 * i + k] : T(0);
+        r.color += std::abs(e);
+        gc[3 * i + k] = wc * sign(e);
+      }
+      for (int64_t k = 0; k < ns; ++k) {
+        const T e = inside ? in.semantic[ns * i + k] - in.sem_target[ns * i + k] : T(0);
+        r.semantic += std::abs(e);
+        gs[ns * i + k] = ws * sign(e);
+      }
+    }
+    rows[y] = r;
+  }
+  L1Sums total;
+  for (const L1Sums& r : rows) {
+    total.depth += r.depth, total.color += r.color, total.semantic += r.semantic;
+    total.pixels += r.pixels;
+  }
+  return total;
+}
+
 }  // namespace
 
 // (loss [], gradient [H, W, C] or an empty tensor) of (1 - w) mean|x - y| + w (1 - mean SSIM).
@@ -314,8 +363,46 @@ std::vector<torch::Tensor> photometric_loss(torch::Tensor pred, torch::Tensor ta
   return {loss, grad};
 }
 
-// The GIL is released while the kernel runs, so tracking and mapping threads overlap.
+// Tracking's masked L1 sums and their gradients (slam/losses.py's tracking_loss_reference):
+//   mask = valid & (silhouette > threshold) & isfinite(depth)
+//   total = w_d sum|D - D_gt| + w_c sum|C - C_gt| + w_s sum|S - S_gt| over the mask,
+// gradients w sign(x - y) inside the mask, 0 outside. Sums in double per row, then in row order (the
+// same for any thread count). Returns (total [], pixels [] int64, sum|D - D_gt| [], d colour [H, W, 3],
+// d semantics [H, W, S], d depth [H, W]); S = 0 leaves the semantic term out.
+std::vector<torch::Tensor> tracking_l1(torch::Tensor color, torch::Tensor semantic, torch::Tensor depth,
+                                       torch::Tensor silhouette, torch::Tensor rgb, torch::Tensor sem_target,
+                                       torch::Tensor depth_target, torch::Tensor valid, double sil_threshold,
+                                       double w_depth, double w_color, double w_semantic, int64_t threads) {
+  const int64_t h = depth.size(0), w = depth.size(1), ns = semantic.size(2);
+  TORCH_CHECK(depth.dim() == 2 && color.sizes() == rgb.sizes() && color.size(0) == h && color.size(1) == w &&
+                  color.size(2) == 3 && semantic.sizes() == sem_target.sizes() && semantic.size(0) == h &&
+                  semantic.size(1) == w && silhouette.sizes() == depth.sizes() &&
+                  depth_target.sizes() == depth.sizes() && valid.sizes() == depth.sizes() &&
+                  valid.scalar_type() == torch::kBool,
+              "tracking_l1: inconsistent shapes");
+  for (auto* t : {&color, &semantic, &depth, &silhouette, &rgb, &sem_target, &depth_target, &valid}) *t = t->contiguous();
+  auto g_color = torch::empty_like(color), g_sem = torch::empty_like(semantic), g_depth = torch::empty_like(depth);
+  auto total = torch::empty({}, depth.options()), depth_sum = torch::empty({}, depth.options());
+  auto pixels = torch::empty({}, depth.options().dtype(torch::kInt64));
+  AT_DISPATCH_FLOATING_TYPES(depth.scalar_type(), "tracking_l1", [&] {
+    using T = scalar_t;
+    const L1Inputs<T> in{color.data_ptr<T>(), semantic.data_ptr<T>(), depth.data_ptr<T>(), silhouette.data_ptr<T>(),
+                         rgb.data_ptr<T>(), sem_target.data_ptr<T>(), depth_target.data_ptr<T>(),
+                         valid.data_ptr<bool>(), h, w, ns};
+    const L1Sums sums = tracking_l1_sums<T>(in, static_cast<T>(sil_threshold), static_cast<T>(w_depth),
+                                            static_cast<T>(w_color), static_cast<T>(w_semantic), g_color.data_ptr<T>(),
+                                            g_sem.data_ptr<T>(), g_depth.data_ptr<T>(), static_cast<int>(threads));
+    total.fill_(w_depth * sums.depth + w_color * sums.color + (ns > 0 ? w_semantic * sums.semantic : 0.0));
+    depth_sum.fill_(sums.depth);
+    pixels.fill_(sums.pixels);
+  });
+  return {total, pixels, depth_sum, g_color, g_sem, g_depth};
+}
+
+// The GIL is released while the kernels run, so tracking and mapping threads overlap.
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("photometric_loss", &photometric_loss, py::call_guard<py::gil_scoped_release>(),
         "(1 - w) L1 + w (1 - SSIM) of [H, W, C] images and its gradient");
+  m.def("tracking_l1", &tracking_l1, py::call_guard<py::gil_scoped_release>(),
+        "tracking's masked L1 sums and their gradients");
 }
