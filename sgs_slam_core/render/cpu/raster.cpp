@@ -7,8 +7,8 @@
 //   max(t_min, 1e-30); that Gaussian and all later ones are skipped (3DGS's early termination)
 //   w_i = alpha_i T_i, image = sum_i w_i f_i, silhouette = 1 - T_final
 //
-// Parallelism: OpenMP over tiles; each tile is processed by one thread, sequentially over its
-// depth-sorted Gaussians, with the tile's pixels in packs of W lanes (compact pixel blocks) in
+// Parallelism: OpenMP over tiles, heaviest first; each tile is processed by one thread, sequentially
+// over its depth-sorted Gaussians, with the tile's pixels in packs of W lanes (compact pixel blocks) in
 // explicit SIMD vectors (GCC vector extensions, lowered to AVX-512, AVX2 or SSE by -march=native).
 // Each Gaussian visits only the packs its footprint box meets (a 64-bit mask per Gaussian and tile).
 // The forward runs pack by pack with the sums in registers; the backward runs Gaussian by Gaussian
@@ -613,15 +613,27 @@ void clear_tile(const Settings& s, int tile, const FrameOut<T>& out) {
     }
 }
 
+// Tiles in decreasing order of their Gaussian counts (ties by index), so the threads take the
+// heaviest tiles first and finish together (longest-processing-time-first); each tile's result is
+// the same in any order.
+inline std::vector<int> heavy_first(const Settings& s, const int64_t* off) {
+  std::vector<int> order(static_cast<size_t>(s.tiles_x * s.tiles_y));
+  for (size_t t = 0; t < order.size(); ++t) order[t] = static_cast<int>(t);
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return off[a + 1] - off[a] > off[b + 1] - off[b]; });
+  return order;
+}
+
 template <typename T>
 void forward_all(const Settings& s, const int64_t* off, const int32_t* gid, const SplatScene<T>& scene,
                  const FrameOut<T>& out, int threads) {
   const int num_tiles = s.tiles_x * s.tiles_y;
+  const std::vector<int> order = heavy_first(s, off);
 #pragma omp parallel num_threads(threads)
   {
     Scratch<T> scratch;
 #pragma omp for schedule(dynamic, 1)
-    for (int t = 0; t < num_tiles; ++t) {
+    for (int i = 0; i < num_tiles; ++i) {
+      const int t = order[i];
       if (off[t + 1] == off[t]) {
         clear_tile(s, t, out);
         continue;
@@ -638,11 +650,13 @@ void backward_all(const Settings& s, const int64_t* off, const int32_t* gid, con
                   const Planes<const T>& gi, const T* gs, const T* t_final, const int32_t* count, T* out,
                   int threads) {
   const int num_tiles = s.tiles_x * s.tiles_y;
+  const std::vector<int> order = heavy_first(s, off);
 #pragma omp parallel num_threads(threads)
   {
     Scratch<T> scratch;
 #pragma omp for schedule(dynamic, 1)
-    for (int t = 0; t < num_tiles; ++t) {
+    for (int i = 0; i < num_tiles; ++i) {
+      const int t = order[i];
       if (off[t + 1] == off[t]) continue;
       with_channels(s.channels, [&](auto dc) {
         backward_tile<T, decltype(dc)::value>(s, t, off, gid, scene, gi, gs, t_final, count, out, scratch);
