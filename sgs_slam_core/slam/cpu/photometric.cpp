@@ -114,7 +114,7 @@ void ssim_pass(const Images<T>& im, const std::vector<T>& taps, bool grad, std::
   const int64_t padded = len + 2 * off;
 #pragma omp parallel num_threads(threads)
   {
-    std::vector<T> buf(5 * padded + 5 * len);
+    std::vector<T> buf(5 * padded + 5 * len);  // zeros: the padding is never written, only [off, off + len)
     T* pad[5];
     T* mom[5];
     for (int k = 0; k < 5; ++k) {
@@ -123,10 +123,6 @@ void ssim_pass(const Images<T>& im, const std::vector<T>& taps, bool grad, std::
     }
 #pragma omp for schedule(static)
     for (int64_t h = 0; h < im.h; ++h) {
-      for (int k = 0; k < 5; ++k) {  // the zero padding
-        std::fill(pad[k], pad[k] + off, T(0));
-        std::fill(pad[k] + off + len, pad[k] + padded, T(0));
-      }
       const int64_t r0 = std::max<int64_t>(h - half, 0), r1 = std::min<int64_t>(h + half, im.h - 1);
       const int64_t L = kLanes<T>;
       int64_t j0 = 0;
@@ -168,10 +164,10 @@ void ssim_pass(const Images<T>& im, const std::vector<T>& taps, bool grad, std::
       const T* __restrict m3 = mom[3];
       const T* __restrict m4 = mom[4];
       // The vertical sums are consumed: their buffers take S and, without grad, the unused derivatives.
-      T* __restrict srow = pad[0];
-      T* __restrict dm = grad ? d_mu + h * len : pad[1];
-      T* __restrict dxx = grad ? d_xx + h * len : pad[2];
-      T* __restrict dxy = grad ? d_xy + h * len : pad[3];
+      T* __restrict srow = pad[0] + off;  // (the data parts, so the zero padding stays zero)
+      T* __restrict dm = grad ? d_mu + h * len : pad[1] + off;
+      T* __restrict dxx = grad ? d_xx + h * len : pad[2] + off;
+      T* __restrict dxy = grad ? d_xy + h * len : pad[3] + off;
       // No reduction and no branch inside: the compiler vectorises the whole formula.
 #pragma omp simd
       for (int64_t j = 0; j < len; ++j) {
@@ -208,7 +204,7 @@ void gradient_pass(const Images<T>& im, const std::vector<T>& taps, const T* d_m
   const T* maps[3] = {d_mu, d_xx, d_xy};
 #pragma omp parallel num_threads(threads)
   {
-    std::vector<T> buf(3 * padded + 3 * len);
+    std::vector<T> buf(3 * padded + 3 * len);  // zeros: the padding is never written, only [off, off + len)
     T* pad[3];
     T* blurred[3];
     for (int k = 0; k < 3; ++k) {
@@ -217,10 +213,6 @@ void gradient_pass(const Images<T>& im, const std::vector<T>& taps, const T* d_m
     }
 #pragma omp for schedule(static)
     for (int64_t h = 0; h < im.h; ++h) {
-      for (int k = 0; k < 3; ++k) {  // the zero padding
-        std::fill(pad[k], pad[k] + off, T(0));
-        std::fill(pad[k] + off + len, pad[k] + padded, T(0));
-      }
       const int64_t r0 = std::max<int64_t>(h - half, 0), r1 = std::min<int64_t>(h + half, im.h - 1);
       const int64_t L = kLanes<T>;
       int64_t j0 = 0;
