@@ -104,12 +104,16 @@ class Feeder(Node):
         self.pubs = {t: self.create_publisher(Image, t, qos) for t in ("/rgb/image", "/depth/image", "/semantic/image")}
         self.info_pub = self.create_publisher(CameraInfo, "/rgb/camera_info", qos)
         self.poses: dict[int, PoseStamped] = {}
-        self.create_subscription(
+        self.pose_sub = self.create_subscription(
             PoseStamped, pose_topic, lambda m: self.poses.__setitem__(stamp_to_ns(m.header.stamp), m), 50
         )
 
     def connected(self, subscribers: int = 1) -> bool:
-        return all(p.get_subscription_count() >= subscribers for p in self.pubs.values())
+        """Whether every input topic, camera_info included, has ``subscribers`` matched readers and the
+        pose topic a matched writer: a message sent before its reader matched is lost (volatile QoS)."""
+        pubs = [*self.pubs.values(), self.info_pub]
+        inputs = all(p.get_subscription_count() >= subscribers for p in pubs)
+        return inputs and self.pose_sub.get_publisher_count() >= 1
 
     def publish(
         self, frame: Frame, depth_encoding: str = "16UC1", semantic: bool = True, frame_id: str = CAMERA

@@ -34,12 +34,12 @@ def test_poses_arrive_across_processes(tiny_scene):
     ctx = new_context(domain)
     feeder = Feeder(ctx)
     maps = []
-    feeder.create_subscription(PointCloud2, "/mapping_node/gaussians", maps.append, 10)
+    map_sub = feeder.create_subscription(PointCloud2, "/mapping_node/gaussians", maps.append, 10)
     spinner = Spinner(ctx, [feeder])
     try:
-        assert wait_for(lambda: feeder.connected(subscribers=2), 60.0), (
+        assert wait_for(lambda: feeder.connected(subscribers=2) and map_sub.get_publisher_count() >= 1, 60.0), (
             "the two nodes did not subscribe"
-        )  # two interpreters start
+        )  # two interpreters start; every topic the test reads or writes is matched before frame 0
         for f in frames:
             feeder.publish(f)
             assert wait_for(lambda f=f: f.stamp_ns in feeder.poses, 60.0), f"no pose for frame {f.index}"
