@@ -2,18 +2,27 @@
 
 A user's mistake (a bad ``--ros-args`` rule, a parameter of the wrong type or out of range, an
 unknown preset or config key) prints one line naming it and exits 1, never a traceback.
+
+SIGINT and SIGTERM are handled here rather than by rclpy: rclpy's handler shuts the context down at
+once, while a SLAM worker thread may be publishing on it (seen as a SIGSEGV at Ctrl-C). Here a
+signal only stops the spin loop; the nodes' workers are stopped before the context goes. A second
+signal exits at once, without waiting for the workers.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import sys
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from sgs_slam_core.errors import SgsSlamError
 
@@ -21,6 +30,29 @@ __all__ = ["USER_ERRORS", "run_nodes"]
 
 # what a user's command line can cause while the nodes are built
 USER_ERRORS = (ValueError, SgsSlamError, ParameterException)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+POLL_S = 0.1  # how long the spin loop waits for work before it looks at the stop flag again
+
+
+@contextmanager
+def _stop_on_signals(stop: threading.Event) -> Iterator[None]:
+    """While inside, SIGINT/SIGTERM set ``stop``; a second one exits the process (code 130)."""
+    if threading.current_thread() is not threading.main_thread():  # Python allows handlers only there
+        yield
+        return
+
+    def handle(signum: int, _frame: object) -> None:
+        if stop.is_set():
+            print("second signal: exiting without waiting for the SLAM workers", file=sys.stderr)
+            os._exit(130)
+        stop.set()
+
+    previous = {s: signal.signal(s, handle) for s in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
 
 
 def _fail(argv: Sequence[str], err: BaseException) -> int:
@@ -33,26 +65,30 @@ def run_nodes(build: Callable[[], Sequence[Node]], args: Sequence[str] | None = 
     """Create the nodes with ``build`` and spin them until Ctrl-C or shutdown; returns the exit code."""
     argv = list(args) if args is not None else list(sys.argv)
     try:
-        rclpy.init(args=argv)
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as err:  # rclpy's RCLError: an unparsable --ros-args rule
         return _fail(argv, err)
     nodes: Sequence[Node] = ()
     executor = MultiThreadedExecutor(num_threads=threads)
-    try:
-        nodes = build()
-        for node in nodes:
-            executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except USER_ERRORS as err:
-        return _fail(argv, err)
-    finally:
-        executor.shutdown()
-        for node in nodes:
-            close = getattr(node, "close", None)
-            if close:
-                close()
-            node.destroy_node()
-        rclpy.try_shutdown()
+    stop = threading.Event()
+    with _stop_on_signals(stop):
+        try:
+            nodes = build()
+            for node in nodes:
+                executor.add_node(node)
+            while not stop.is_set() and rclpy.ok():
+                executor.spin_once(timeout_sec=POLL_S)
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        except USER_ERRORS as err:
+            return _fail(argv, err)
+        finally:
+            for node in nodes:  # workers first: they publish through the nodes and the context
+                close = getattr(node, "close", None)
+                if close:
+                    close()
+            executor.shutdown()
+            for node in nodes:
+                node.destroy_node()
+            rclpy.try_shutdown()
     return 0

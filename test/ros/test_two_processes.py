@@ -16,10 +16,10 @@ from .helpers import FAST, Feeder, Spinner, new_context, wait_for
 pytestmark = pytest.mark.ros
 
 
-def start(module: str, domain: int, *params: str) -> subprocess.Popen:
+def start(module: str, domain: int, *params: str, overrides: list[str] = FAST) -> subprocess.Popen:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)  # let the child set up its own library path
-    overrides = "[" + ",".join(f"'{o}'" for o in FAST) + "]"
+    overrides = "[" + ",".join(f"'{o}'" for o in overrides) + "]"
     args = ["-p", "preset:=synthetic", "-p", f"overrides:={overrides}", "-p", "lockstep:=true",
             "-p", "input_qos:=reliable_all", *(a for p in params for a in ("-p", p))]  # fmt: skip
     return subprocess.Popen([sys.executable, "-m", module, "--ros-args", *args], env=env,
@@ -59,3 +59,31 @@ def test_poses_arrive_across_processes(tiny_scene):
                 outputs.append(proc.communicate()[0])
         print("\n---- node logs ----\n" + "\n".join(outputs))  # pytest shows it when the test fails
     assert tracker.returncode == 0 and mapper.returncode == 0, "\n".join(outputs)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_while_mapping_runs_exits_cleanly(tiny_scene, signum):
+    """The signal lands while the mapping worker is busy: the worker stops first, exit code 0."""
+    frame = open_dataset(tiny_scene)[0]
+    domain = random.randint(1, 100)
+    node = start("sgs_slam_ros.slam_node", domain, overrides=["tracking.iterations=15", "mapping.iterations=3000"])
+    ctx = new_context(domain)
+    feeder = Feeder(ctx)
+    spinner = Spinner(ctx, [feeder])
+    try:
+        assert wait_for(feeder.connected, 60.0), "slam_node did not subscribe"
+        feeder.publish(frame)
+        assert wait_for(lambda: frame.stamp_ns in feeder.poses, 60.0), "no pose for frame 0"
+        node.send_signal(signum)  # frame 0's pose is out; its 3000 mapping iterations are running
+        try:
+            output = node.communicate(timeout=30)[0]
+        except subprocess.TimeoutExpired:
+            node.kill()
+            output = node.communicate()[0]
+            pytest.fail("slam_node did not stop within 30 s of the signal:\n" + output)
+    finally:
+        spinner.stop()
+        feeder.destroy_node()
+        ctx.try_shutdown()
+    assert node.returncode == 0, output
+    assert "Traceback" not in output, output
