@@ -13,7 +13,8 @@ both drive it. Callers only hand over frames; the work happens on two worker thr
 Live on the CPU, the two workers take turns instead of running their kernels at the same time (two
 thread teams on a few cores slow each other down, measured): after each tracked frame mapping may
 run for as long as that frame's tracking took, then it pauses between its steps while a frame is
-being tracked or waits to be. On CUDA the mapping thread runs on its own stream, beside tracking.
+being tracked or waits to be; a frame whose turn comes while a mapping step runs waits for that
+step to end. On CUDA the mapping thread runs on its own stream, beside tracking.
 Two synchronisations make that safe: ``Slam`` finishes a side stream's work before it publishes a
 map (``Slam._set_gaussians``), and tracking reads its result back to the host before it returns,
 so no tensor is freed while a kernel of the other thread may still read it.
@@ -22,6 +23,7 @@ so no tensor is freed while a kernel of the other thread may still read it.
 from __future__ import annotations
 
 import contextlib
+import math
 import threading
 import time
 import traceback
@@ -74,6 +76,9 @@ class SlamPipeline:
 
     ``track`` / ``map``: which workers run here (a standalone tracking or mapping node runs one).
     ``ready_to_track(frames_tracked)``: an extra lockstep condition (a remote map has caught up).
+    ``preempt_fraction``: live, a mapping job ends once it has made this fraction of its iterations
+    and a newer frame waits to be mapped (so every frame mapped densifies the map, and mapping keeps
+    near the camera instead of finishing old frames); 1 never ends a job early.
     Listeners are called on the worker threads; one that raises is logged and counted.
     """
 
@@ -85,6 +90,7 @@ class SlamPipeline:
         map: bool = True,
         log: Callable[[str], None] = print,
         ready_to_track: Callable[[int], bool] | None = None,
+        preempt_fraction: float = 1 / 3,
     ) -> None:
         self.slam, self.lockstep, self.log = slam, lockstep, log
         self.track_enabled, self.map_enabled = track, map
@@ -102,6 +108,10 @@ class SlamPipeline:
         # live on the CPU: tracking and mapping take turns instead of sharing the cores (see the module doc)
         self._share_cpu = not lockstep and track and map and slam.device.type == "cpu"
         self._map_turn_until = 0.0  # time.monotonic() until which mapping may run before the next frame
+        self._map_in_step = False  # the mapping thread is computing (between two of its pause points)
+        self._map_steps = 0  # steps the current mapping job has made
+        # live: a job with a newer one waiting ends after this many steps (0 when it may not end early)
+        self._preempt_steps = 0 if lockstep else math.ceil(preempt_fraction * slam.config.mapping.iterations)
         self._threads = []
         if track:
             self._threads.append(threading.Thread(target=self._track_loop, name="sgs-track", daemon=True))
@@ -146,6 +156,8 @@ class SlamPipeline:
                 return True
             if self.slam.num_gaussians == 0 and not self._mapping_idle():
                 return False  # the first frame's Gaussians are being made
+            if self._share_cpu and self._map_in_step:
+                return False  # the cores are mapping's until its step ends: never both at once
             return self._mapping_idle() or time.monotonic() >= self._map_turn_until
         if self.map_enabled and not self._mapping_idle():
             return False
@@ -203,6 +215,8 @@ class SlamPipeline:
                     continue
                 job = self._jobs.popleft()
                 self._busy["map"] = True
+                self._map_in_step = True
+                self._map_steps = 0
             result, tracked = None, job.tracked
             try:
                 with self._on_map_stream():
@@ -214,18 +228,22 @@ class SlamPipeline:
                 self._error("mapping", err)
             with self._cv:
                 self._busy["map"] = False
+                self._map_in_step = False
                 self.stats.mapped += int(result is not None)
                 self._cv.notify_all()
             if result is not None and tracked is not None:
                 self._notify("publishing the map", self.map_listeners, job.frame, tracked, result)
 
-    def _between_map_steps(self) -> None:
-        """Before each mapping step: raise when shutting down.
+    def _between_map_steps(self) -> bool:
+        """Before each mapping step: raise when shutting down; False ends the job here (live, a newer
+        job waits and this one made its share of steps).
 
         Live on the CPU, mapping goes on during its turn, else waits while tracking has work.
         """
         with self._cv:
             if self._share_cpu:
+                self._map_in_step = False
+                self._cv.notify_all()  # a tracker waiting for this step to end
                 self._cv.wait_for(
                     lambda: (
                         not self._running
@@ -236,6 +254,11 @@ class SlamPipeline:
                 )
             if not self._running:
                 raise _StoppingError
+            if self._preempt_steps and self._jobs and self._map_steps >= self._preempt_steps:
+                return False
+            self._map_in_step = True
+            self._map_steps += 1
+            return True
 
     @contextlib.contextmanager
     def _on_map_stream(self) -> Iterator[None]:

@@ -65,20 +65,21 @@ def map_window(
     use_semantics: bool,
     rng: np.random.Generator,
     frozen_labels: frozenset[int] = frozenset(),
-    between_iterations: Callable[[], None] | None = None,
+    between_iterations: Callable[[], bool] | None = None,
 ) -> MapResult:
     """``s.iterations`` Adam steps (fresh optimiser), each on one frame drawn uniformly from the window.
 
     Gaussians of ``frozen_labels`` are left exactly as they are. ``between_iterations`` is called
-    before each step (live operation: it returns when mapping may go on).
+    before each step (live operation: it returns when mapping may go on); when it returns False the
+    window ends there and the map keeps the steps made so far (a newer frame is waiting).
     """
     t0 = time.perf_counter()
     opt = GaussianOptimizer(gaussians, s, frozen_labels)
-    pruned, last = 0, float("nan")
+    pruned, last, done = 0, float("nan"), 0
     prune_at = set(s.prune_iterations)
     for it in range(s.iterations):
-        if between_iterations is not None:
-            between_iterations()
+        if between_iterations is not None and not between_iterations():
+            break
         wf = window[int(rng.integers(len(window)))]
         semantic = use_semantics and wf.data.semantic is not None
         with record_function("map.render"):
@@ -92,5 +93,6 @@ def map_window(
         if it in prune_at:
             with record_function("map.prune"):
                 pruned += opt.prune(prune_mask(opt.gaussians(), s.prune_opacity, s.prune_scale_ratio * scene_radius))
-    last = float(loss.detach()) if s.iterations else last  # one host sync per window, not per iteration
-    return MapResult(opt.result(), MapStats(s.iterations, pruned, time.perf_counter() - t0, last))
+        done = it + 1
+    last = float(loss.detach()) if done else last  # one host sync per window, not per iteration
+    return MapResult(opt.result(), MapStats(done, pruned, time.perf_counter() - t0, last))

@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from sgs_slam_core.errors import ConfigError
+from sgs_slam_core.geometry.icp import IcpSettings
 
 __all__ = ["DensifySettings", "GuardSettings", "KeyframeSettings", "MappingSettings", "TrackingSettings"]
 
@@ -42,6 +43,17 @@ class TrackingSettings:
         stop_check_every: read the stop test back from the device every n steps (0 = auto: every
             step on the CPU, where reading is free, every 5 on CUDA, so the loop does not wait on the GPU).
         constant_velocity: initialise from the last two poses (else from the last pose).
+        icp_iterations: Gauss-Newton steps of a depth-to-depth ICP against the last tracked frame
+            that refines the motion prediction before the photometric steps, per pyramid level,
+            coarsest first (the last level is the full image); empty = no ICP.
+        icp_max_distance_m: ICP correspondences farther apart than this (m) are left out.
+        icp_min_inliers: the ICP result is used only when at least this fraction of the frame's
+            pixels with depth find a correspondence; otherwise the prediction is kept.
+        icp_min_gap: run the ICP only on frames that come at least this many camera frame
+            intervals (the shortest gap between two tracked frames) after the last tracked one:
+            frames were dropped (live) and the prediction extrapolates. 0 = on every frame, which
+            costs accuracy on TUM's Kinect depth at 160x120 (ATE 4.57 against 3.16 cm,
+            BENCHMARKS.md); with the default, a run without gaps never uses it.
         use_gt_pose: replace tracking by the ground-truth pose (ablation; needs ground truth).
     """
 
@@ -58,6 +70,10 @@ class TrackingSettings:
     min_iterations: int = 5
     stop_check_every: int = 0
     constant_velocity: bool = True
+    icp_iterations: tuple[int, ...] = (6, 4, 3)
+    icp_max_distance_m: float = 0.1
+    icp_min_inliers: float = 0.3
+    icp_min_gap: float = 1.5
     use_gt_pose: bool = False
 
     def __post_init__(self) -> None:
@@ -70,6 +86,19 @@ class TrackingSettings:
             raise ConfigError(f"tracking.sil_threshold must be in [0, 1), got {self.sil_threshold}")
         if not 0 <= self.stop_rel_improvement < 1:
             raise ConfigError(f"tracking.stop_rel_improvement must be in [0, 1), got {self.stop_rel_improvement}")
+        if any(n < 0 for n in self.icp_iterations) or len(self.icp_iterations) > 6:
+            raise ConfigError(f"tracking.icp_iterations must be at most 6 counts >= 0, got {list(self.icp_iterations)}")
+        _positive("tracking", icp_max_distance_m=self.icp_max_distance_m)
+        _non_negative("tracking", icp_min_gap=self.icp_min_gap)
+        if not 0 <= self.icp_min_inliers <= 1:
+            raise ConfigError(f"tracking.icp_min_inliers must be in [0, 1], got {self.icp_min_inliers}")
+
+    @property
+    def icp(self) -> IcpSettings | None:
+        """The ICP that refines the motion prediction, or None when off."""
+        if not any(self.icp_iterations):
+            return None
+        return IcpSettings(iterations=self.icp_iterations, max_distance_m=self.icp_max_distance_m)
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ from sgs_slam_core.slam.densify import densify_mask, gaussians_from_pixels, scen
 from sgs_slam_core.slam.edits import EditLocks
 from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors, resize_arrays
 from sgs_slam_core.slam.guard import TrackingGuard
+from sgs_slam_core.slam.icp_init import IcpInit
 from sgs_slam_core.slam.keyframes import Window, is_keyframe, select_window
 from sgs_slam_core.slam.mapper import MapResult, MapStats, WindowFrame, map_window
 from sgs_slam_core.slam.pose import predict_constant_velocity
@@ -151,6 +152,9 @@ class Slam:
         self._loaded_trajectory: list[tuple[int, int, np.ndarray]] = []  # a loaded map's history, saved again
         self._loaded_keyframe_poses: list[tuple[int, np.ndarray]] = []  # its keyframes without images
         self._gt_origin: np.ndarray | None = None
+        self._min_interval_ns: int | None = None  # shortest stamp gap between two tracked frames
+        icp = self.config.tracking.icp
+        self._icp = None if icp is None else IcpInit(icp, self.config.tracking.icp_min_inliers)
 
     @property
     def num_gaussians(self) -> int:
@@ -198,6 +202,12 @@ class Slam:
             tracking = self._track(data, frame)
             c2w = np.linalg.inv(tracking.w2c)
             failure = self.guard.check(tracking.depth_residual_m, tracking.loss_per_pixel, tracking.valid_fraction)
+        if self._icp is not None and failure is None:  # the next frame's ICP reference
+            data = self._frame_tensors(frame) if data is None else data  # mapping reuses it
+            self._icp.remember(torch.where(data.valid, data.depth, 0.0), frame.intrinsics, c2w)
+        if self.trajectory and frame.stamp_ns > self.trajectory[-1][1]:
+            gap = frame.stamp_ns - self.trajectory[-1][1]
+            self._min_interval_ns = gap if self._min_interval_ns is None else min(gap, self._min_interval_ns)
         self.trajectory.append((index, frame.stamp_ns, c2w))
         self.frames_processed += 1
         if failure is not None:
@@ -219,12 +229,13 @@ class Slam:
         return TrackOutcome(index, frame.stamp_ns, c2w, None, None, 0.0)
 
     def map(
-        self, frame: Frame, tracked: TrackOutcome, between_iterations: Callable[[], None] | None = None
+        self, frame: Frame, tracked: TrackOutcome, between_iterations: Callable[[], bool] | None = None
     ) -> MapOutcome:
         """Densify, select the window, optimise the map, and keep keyframes (nothing on a failed frame).
 
         ``between_iterations`` is called before each mapping step (the live pipeline pauses mapping
-        there while tracking has work).
+        there while tracking has work, and ends the window early, returning False, when a newer
+        frame waits to be mapped).
         """
         if tracked.failed:
             return MapOutcome(None, None, False, 0, 0.0)
@@ -232,7 +243,7 @@ class Slam:
             return self._map_frame(frame, tracked, between_iterations)
 
     def _map_frame(
-        self, frame: Frame, tracked: TrackOutcome, between_iterations: Callable[[], None] | None = None
+        self, frame: Frame, tracked: TrackOutcome, between_iterations: Callable[[], bool] | None = None
     ) -> MapOutcome:
         t0 = time.perf_counter()
         index, c2w = tracked.index, tracked.c2w
@@ -375,8 +386,17 @@ class Slam:
         prev = poses[-1] if poses else self.initial_c2w
         prev2 = poses[-2] if len(poses) > 1 and self.config.tracking.constant_velocity else None
         init_c2w = predict_constant_velocity(prev, prev2, self._motion_fraction(frame.stamp_ns))
+        if self._icp is not None and self._intervals_since_last(frame.stamp_ns) >= self.config.tracking.icp_min_gap:
+            init_c2w, _ = self._icp.refine(torch.where(data.valid, data.depth, 0.0), data.intrinsics, init_c2w)
         use_sem = frame.labels is not None and self.config.tracking.weight_semantic > 0
         return track(self.gaussians, data, np.linalg.inv(init_c2w), self.config.tracking, self.config.render, use_sem)
+
+    def _intervals_since_last(self, stamp_ns: int) -> float:
+        """Camera frame intervals (the shortest gap between two tracked frames so far) since the last
+        tracked frame: about 1 when no frame was dropped, 0 when unknown."""
+        if not self.trajectory or self._min_interval_ns is None:
+            return 0.0
+        return (stamp_ns - self.trajectory[-1][1]) / self._min_interval_ns
 
     def _motion_fraction(self, stamp_ns: int) -> float:
         """Time since the last tracked frame over the gap before it, when frames were skipped (live mode).
@@ -432,7 +452,7 @@ class Slam:
         c2w: np.ndarray,
         window: Window,
         use_sem: bool,
-        between_iterations: Callable[[], None] | None = None,
+        between_iterations: Callable[[], bool] | None = None,
     ) -> MapResult:
         frames = []
         for store_index, weight in zip(window.keyframes, window.weights[:-1], strict=True):

@@ -26,6 +26,7 @@ class GatedSlam:
 
     def __init__(self) -> None:
         self.device = torch.device("cpu")
+        self.config = SimpleNamespace(mapping=SimpleNamespace(iterations=20))  # live: a job may end after 7
         self.frames_processed, self.num_gaussians = 0, 0
         self.gate = threading.Semaphore(0)
         self.tracked: list[int] = []
@@ -42,15 +43,17 @@ class GatedSlam:
 
 
 class TimedSlam(GatedSlam):
-    """Tracking takes 30 ms; mapping runs 20 steps of 5 ms and records whether tracking was running."""
+    """Tracking takes 30 ms; mapping runs up to 20 steps of 5 ms; each records whether the other ran."""
 
     def __init__(self) -> None:
         super().__init__()
-        self.tracking_now = False
-        self.steps_during_tracking = 0
+        self.tracking_now = self.mapping_now = False
+        self.steps_during_tracking = self.tracks_during_steps = 0
         self.steps = 0
+        self.job_steps: list[int] = []
 
     def track(self, frame):
+        self.tracks_during_steps += int(self.mapping_now)
         self.tracking_now = True
         time.sleep(0.03)
         self.tracking_now = False
@@ -59,12 +62,17 @@ class TimedSlam(GatedSlam):
 
     def map(self, frame, tracked, between_iterations=None):
         self.num_gaussians += 1
+        steps = 0
         for _ in range(20):
-            if between_iterations is not None:
-                between_iterations()
+            if between_iterations is not None and not between_iterations():
+                break
             self.steps_during_tracking += int(self.tracking_now)
-            self.steps += 1
+            self.mapping_now = True
             time.sleep(0.005)
+            self.mapping_now = False
+            self.steps += 1
+            steps += 1
+        self.job_steps.append(steps)
         return SimpleNamespace()
 
 
@@ -98,7 +106,26 @@ def test_live_on_the_cpu_mapping_steps_never_start_while_a_frame_is_tracked():
             time.sleep(0.01)
         assert pipeline.wait_idle(10.0)
         assert slam.steps >= 20 and slam.steps_during_tracking == 0
+        assert slam.tracks_during_steps == 0  # a frame waits for the mapping step in progress to end
         assert pipeline.stats.tracked >= 2 and pipeline.stats.mapped >= 1
+    finally:
+        pipeline.shutdown()
+
+
+@pytest.mark.parametrize("lockstep", [False, True])
+def test_live_a_mapping_job_with_a_newer_one_waiting_ends_after_a_third_of_its_steps(lockstep):
+    slam = TimedSlam()
+    pipeline = SlamPipeline(slam, lockstep=lockstep, log=lambda _: None)
+    try:
+        for i in range(12):  # tracking outpaces mapping: a newer job is always waiting
+            pipeline.submit_frame(SimpleNamespace(index=i))
+            time.sleep(0.01)
+        assert pipeline.wait_idle(20.0)
+        if lockstep:  # every job runs to the end
+            assert slam.job_steps == [20] * 12
+        else:  # ceil(20 / 3) = 7 steps when preempted; the last job, with nothing waiting, runs all 20
+            assert 7 in slam.job_steps and set(slam.job_steps) <= set(range(7, 21))
+            assert slam.job_steps[-1] == 20
     finally:
         pipeline.shutdown()
 
@@ -116,8 +143,8 @@ class SlowMappingSlam(GatedSlam):
 
     def map(self, frame, tracked, between_iterations=None):
         for _ in range(400):
-            if between_iterations is not None:
-                between_iterations()
+            if between_iterations is not None and not between_iterations():
+                break
             self.steps += 1
             time.sleep(0.01)
         return SimpleNamespace()
