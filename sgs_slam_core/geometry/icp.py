@@ -64,15 +64,18 @@ class IcpLevel:
     packed: Tensor  # [H * W, 7] float32: camera-frame vertex (m), unit normal facing the camera, valid (0/1)
 
     @property
-    def vertices(self) -> Tensor:  # [H, W, 3] m, 0 where the depth is invalid
+    def vertices(self) -> Tensor:  # [H, W, 3]
+        """Camera-frame points (m), 0 where the depth is invalid."""
         return self.packed[:, :3].reshape(*self.intrinsics.shape, 3)
 
     @property
-    def normals(self) -> Tensor:  # [H, W, 3], 0 where undefined
+    def normals(self) -> Tensor:  # [H, W, 3]
+        """Unit normals facing the camera, 0 where undefined."""
         return self.packed[:, 3:6].reshape(*self.intrinsics.shape, 3)
 
     @property
-    def valid(self) -> Tensor:  # [H, W] bool, vertex and normal defined
+    def valid(self) -> Tensor:  # [H, W] bool
+        """Pixels whose vertex and normal are defined."""
         return self.packed[:, 6].reshape(self.intrinsics.shape) > 0
 
 
@@ -131,8 +134,10 @@ def _scales(depth: Tensor, intrinsics: Intrinsics, levels: int) -> list[tuple[Te
 
 
 def icp_pyramid(depth: Tensor, intrinsics: Intrinsics, levels: int) -> list[IcpLevel]:  # depth [H, W] m, 0 = invalid
-    """Vertex and normal maps of ``depth`` at ``levels`` scales, coarsest first (the reference side;
-    ``levels = len(settings.steps_for(width))``)."""
+    """Vertex and normal maps of ``depth`` at ``levels`` scales, coarsest first (the reference side).
+
+    ``levels`` is ``len(settings.steps_for(width))``.
+    """
     return [_level(d, k) for d, k in _scales(depth, intrinsics, levels)]
 
 

@@ -235,9 +235,9 @@ class SlamPipeline:
                 self._notify("publishing the map", self.map_listeners, job.frame, tracked, result)
 
     def _between_map_steps(self) -> bool:
-        """Before each mapping step: raise when shutting down; False ends the job here (live, a newer
-        job waits and this one made its share of steps).
+        """Before each mapping step: raise when shutting down, return False to end the job here.
 
+        The job ends early live, when a newer job waits and this one made its share of steps.
         Live on the CPU, mapping goes on during its turn, else waits while tracking has work.
         """
         with self._cv:

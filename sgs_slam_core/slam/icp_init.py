@@ -53,8 +53,11 @@ class IcpInit:
     def refine(
         self, depth: Tensor, intrinsics: Intrinsics, predicted_c2w: np.ndarray
     ) -> tuple[np.ndarray, IcpOutcome | None]:  # depth [H, W] m -> c2w [4, 4]
-        """The starting pose for a frame with ``depth``: the ICP result, or the prediction when there is
-        no reference, or too few pixels found a correspondence (outcome None: no reference)."""
+        """The starting pose for a frame with ``depth``: the ICP result, or else the prediction.
+
+        The prediction is kept when there is no reference (outcome None) or too few pixels found a
+        correspondence.
+        """
         ref = self._reference
         if ref is None or ref.intrinsics != intrinsics:
             return predicted_c2w, None

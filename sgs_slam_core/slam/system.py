@@ -392,8 +392,10 @@ class Slam:
         return track(self.gaussians, data, np.linalg.inv(init_c2w), self.config.tracking, self.config.render, use_sem)
 
     def _intervals_since_last(self, stamp_ns: int) -> float:
-        """Camera frame intervals (the shortest gap between two tracked frames so far) since the last
-        tracked frame: about 1 when no frame was dropped, 0 when unknown."""
+        """Camera frame intervals since the last tracked frame: about 1 when none was dropped, 0 unknown.
+
+        The interval is the shortest stamp gap between two tracked frames so far.
+        """
         if not self.trajectory or self._min_interval_ns is None:
             return 0.0
         return (stamp_ns - self.trajectory[-1][1]) / self._min_interval_ns
