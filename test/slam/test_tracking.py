@@ -7,14 +7,19 @@ import dataclasses
 import numpy as np
 import torch
 
+from sgs_slam_core.config import load_config
+from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.geometry import se3_exp
 from sgs_slam_core.render import RenderSettings, render
 from sgs_slam_core.render.api import RenderOutput
 from sgs_slam_core.slam.frame_data import FrameTensors
+from sgs_slam_core.slam.icp_init import IcpInit
 from sgs_slam_core.slam.losses import mapping_loss, tracking_loss
 from sgs_slam_core.slam.settings import MappingSettings, TrackingSettings
+from sgs_slam_core.slam.system import Slam
 from sgs_slam_core.slam.tracker import track
 
+from ..conftest import FAST_SLAM
 from ..render.scenes import random_scene
 
 SETTINGS = RenderSettings(backend="torch")
@@ -72,3 +77,29 @@ def test_reading_the_stop_test_less_often_changes_nothing_but_the_stop_step():
     assert every.converged and sparse.converged
     assert sparse.iterations % 7 == 0 and every.iterations <= sparse.iterations  # stops only where it reads
     assert sparse.loss <= every.loss  # more steps never lose the best pose
+
+
+def test_the_icp_start_runs_after_dropped_frames_only_and_helps_there(tiny_scene, monkeypatch):
+    """Lockstep frames start from the motion prediction; a frame after a gap from ICP on depth."""
+    tiny = open_dataset(tiny_scene)
+    outcomes = []
+    refine = IcpInit.refine
+
+    def spy(self, *args):
+        result = refine(self, *args)
+        outcomes.append(result[1])
+        return result
+
+    monkeypatch.setattr(IcpInit, "refine", spy)
+    errors, steps = [], []
+    for icp in ("tracking.icp_min_gap=1.5", "tracking.icp_iterations=[]"):
+        slam = Slam(load_config("synthetic", overrides=[*FAST_SLAM, icp]), tiny.label_table)
+        for i in range(4):
+            slam.process(tiny[i])
+        assert outcomes == []
+        step = slam.process(tiny[7])  # frames 4-6 were dropped
+        errors.append(np.linalg.norm(step.c2w[:3, 3] - slam._gt_in_map_frame(tiny[7].gt_c2w)[:3, 3]))
+        steps.append(step.tracking.iterations)
+        if icp.startswith("tracking.icp_min_gap"):
+            assert len(outcomes) == 1 and outcomes.pop().used
+    assert errors[0] < errors[1] and steps[0] < steps[1]  # measured: 2.1 vs 3.1 cm, 14 vs 30 (the cap) steps

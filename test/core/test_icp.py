@@ -1,0 +1,98 @@
+"""Depth ICP: recovers a known motion inside a ray-cast room, keeps unconstrained directions, fails safe."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from sgs_slam_core.errors import ShapeError
+from sgs_slam_core.geometry.camera import Intrinsics, pixel_grid
+from sgs_slam_core.geometry.icp import IcpSettings, align_depth, icp_pyramid
+from sgs_slam_core.geometry.se3 import se3_exp
+
+K = Intrinsics(fx=80.0, fy=80.0, cx=79.5, cy=59.5, width=160, height=120)
+ROOM = (np.array([-2.0, -1.2, -1.0]), np.array([1.5, 1.0, 3.0]))  # axis-aligned box around the camera (m)
+
+
+def room_depth(c2w: np.ndarray, k: Intrinsics = K, planes: str = "box") -> torch.Tensor:  # [H, W] m
+    """Depth from ``c2w`` to the inside of ROOM (``planes="wall"``: only the far wall z = 3, else 0)."""
+    u, v = (t.numpy().astype(np.float64) for t in pixel_grid(k.height, k.width))
+    rays = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)  # z = 1 in the camera
+    dirs = rays @ c2w[:3, :3].T
+    origin = c2w[:3, 3]
+    lo, hi = ROOM
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_exit = np.minimum.reduce([np.where(dirs[..., i] > 0, (hi[i] - origin[i]) / dirs[..., i],
+                                             np.where(dirs[..., i] < 0, (lo[i] - origin[i]) / dirs[..., i], np.inf))
+                                    for i in range(3)])  # fmt: skip
+        if planes == "wall":
+            t_wall = (hi[2] - origin[2]) / dirs[..., 2]
+            t_exit = np.where(np.isclose(t_wall, t_exit), t_wall, 0.0)
+    return torch.from_numpy(t_exit.astype(np.float32))  # the ray's camera z is 1 per unit t: t is the depth
+
+
+def pose(rho: tuple[float, float, float], phi_deg: tuple[float, float, float]) -> np.ndarray:  # [4, 4]
+    xi = torch.tensor([*rho, *(math.radians(a) for a in phi_deg)], dtype=torch.float64)
+    return se3_exp(xi).numpy()
+
+
+def errors(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:  # (m, deg)
+    cos = np.clip((np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2, -1, 1)
+    return float(np.linalg.norm(a[:3, 3] - b[:3, 3])), math.degrees(math.acos(cos))
+
+
+DEFAULT = IcpSettings()
+
+
+def align(ref_c2w, src_c2w, init, s=DEFAULT, planes="box"):
+    ref = icp_pyramid(room_depth(ref_c2w, planes=planes), K, len(s.steps_for(K.width)))
+    return align_depth(room_depth(src_c2w, planes=planes), K, ref, torch.as_tensor(init), s)
+
+
+def test_recovers_a_motion_of_several_frames_from_no_prior():
+    ref_c2w = pose((0.1, -0.05, 0.2), (2.0, -5.0, 1.0))
+    motion = pose((0.06, 0.02, -0.05), (1.5, 3.0, -2.0))  # ~8 cm and ~4 degrees: three fast frames
+    res = align(ref_c2w, ref_c2w @ motion, np.eye(4))  # the default steps: a start for tracking
+    trans, rot = errors(res.src_to_ref.numpy(), motion)
+    assert trans < 0.01 and rot < 0.05  # from 7.5 cm and 3.6 degrees off
+    assert res.inlier_fraction > 0.8 and res.rms_m < 0.005
+    res = align(ref_c2w, ref_c2w @ motion, np.eye(4), IcpSettings(iterations=(10, 10, 10)))  # converged
+    trans, rot = errors(res.src_to_ref.numpy(), motion)
+    assert trans < 5e-4 and rot < 0.01 and res.rms_m < 0.002
+
+
+def test_directions_the_geometry_does_not_constrain_stay_at_the_prediction():
+    """Only a flat wall in view: sliding along it changes nothing, so the prediction's slide is kept."""
+    motion = pose((0.0, 0.0, 0.04), (0.0, 0.0, 0.0))
+    init = pose((0.03, 0.0, 0.0), (0.0, 0.0, 0.0))  # right depth-wise, 3 cm off along the wall
+    res = align(np.eye(4), motion, init, planes="wall").src_to_ref.numpy()
+    assert abs(res[2, 3] - 0.04) < 1e-3  # the distance to the wall is recovered
+    assert abs(res[0, 3] - 0.03) < 2e-3  # the slide stays where the prediction put it
+
+
+def test_no_overlap_keeps_the_initial_pose_and_reports_no_inliers():
+    s = IcpSettings()
+    empty = icp_pyramid(torch.zeros(K.shape), K, len(s.steps_for(K.width)))
+    init = pose((0.01, 0.0, 0.0), (0.0, 1.0, 0.0))
+    res = align_depth(room_depth(np.eye(4)), K, empty, torch.as_tensor(init), s)
+    assert res.inlier_fraction == 0.0 and res.rms_m == math.inf
+    np.testing.assert_allclose(res.src_to_ref.numpy(), init, atol=1e-9)
+
+
+def test_coarse_levels_narrower_than_the_minimum_are_left_out():
+    s = IcpSettings(iterations=(6, 4, 3), min_width=40)
+    assert s.steps_for(160) == (6, 4, 3)  # 40 px at the coarsest level
+    assert s.steps_for(100) == (4, 3)
+    assert s.steps_for(64) == (3,)
+    with pytest.raises(ShapeError, match="levels"):
+        two_levels = icp_pyramid(torch.ones(K.shape), K, 2)
+        align_depth(torch.ones(K.shape), K, two_levels, torch.eye(4, dtype=torch.float64), s)
+
+
+def test_float64_pose_on_the_depth_device():
+    s = IcpSettings()
+    res = align(np.eye(4), pose((0.01, 0.0, 0.0), (0.0, 0.0, 0.0)), np.eye(4), s)
+    assert res.src_to_ref.dtype == torch.float64 and res.src_to_ref.device.type == "cpu"
