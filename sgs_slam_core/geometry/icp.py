@@ -174,7 +174,7 @@ def _gauss_newton_step(
     hessian, gradient = normal[:6, :6], normal[:6, 6]
     eye = torch.eye(6, dtype=torch.float64, device=hessian.device)
     hessian = hessian + (s.damping * hessian.diagonal().mean() + 1e-12) * eye
-    xi = -torch.linalg.solve(hessian, gradient)
+    xi = -torch.linalg.solve_ex(hessian, gradient)[0]  # solve_ex: no error check, so no wait for the GPU
     return se3_exp(xi) @ src_to_ref
 
 

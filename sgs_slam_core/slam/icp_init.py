@@ -35,16 +35,12 @@ class _Reference:
 class IcpInit:
     """Keeps the last tracked frame's depth and aligns a new frame's depth to it.
 
-    Used by one tracking thread; :meth:`forget` after a reset or a map load.
+    Used by one tracking thread; ``Slam.reset`` (and so a map load) makes a fresh one.
     """
 
     def __init__(self, settings: IcpSettings, min_inliers: float) -> None:
         self.settings, self.min_inliers = settings, min_inliers
         self._reference: _Reference | None = None
-
-    def forget(self) -> None:
-        """Drop the reference frame (the next frame starts from the prediction alone)."""
-        self._reference = None
 
     def remember(self, depth: Tensor, intrinsics: Intrinsics, c2w: np.ndarray) -> None:  # depth [H, W] m
         """Make ``depth``, seen from ``c2w``, the reference of the next frame (kept, not copied)."""
