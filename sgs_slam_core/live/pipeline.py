@@ -12,9 +12,9 @@ both drive it. Callers only hand over frames; the work happens on two worker thr
 
 Live on the CPU, the two workers take turns instead of running their kernels at the same time (two
 thread teams on a few cores slow each other down, measured): after each tracked frame mapping may
-run for as long as that frame's tracking took, then it pauses between its steps while a frame is
-being tracked or waits to be; a frame whose turn comes while a mapping step runs waits for that
-step to end. On CUDA the mapping thread runs on its own stream, beside tracking.
+run for a quarter of the time that frame's tracking took (``map_share``), then it pauses between
+its steps while a frame is being tracked or waits to be; a frame whose turn comes while a mapping
+step runs waits for that step to end. On CUDA the mapping thread runs on its own stream, beside tracking.
 Two synchronisations make that safe: ``Slam`` finishes a side stream's work before it publishes a
 map (``Slam._set_gaussians``), and tracking reads its result back to the host before it returns,
 so no tensor is freed while a kernel of the other thread may still read it.
@@ -76,6 +76,10 @@ class SlamPipeline:
 
     ``track`` / ``map``: which workers run here (a standalone tracking or mapping node runs one).
     ``ready_to_track(frames_tracked)``: an extra lockstep condition (a remote map has caught up).
+    ``map_share``: live on the CPU, mapping's turn after a tracked frame, as a fraction of that
+    frame's tracking time. On the room at 10 Hz (2 cores) 1 tracked 52/200 frames, 0.5 76/200, 0.25
+    105/200, all at ATE 3.4 cm (BENCHMARKS.md): mapping's share did not move the trajectory, and
+    a live robot wants poses.
     ``preempt_fraction``: live, a mapping job ends once it has made this fraction of its iterations
     and a newer frame waits to be mapped (so every frame mapped densifies the map, and mapping keeps
     near the camera instead of finishing old frames); 1 never ends a job early.
@@ -91,6 +95,7 @@ class SlamPipeline:
         log: Callable[[str], None] = print,
         ready_to_track: Callable[[int], bool] | None = None,
         preempt_fraction: float = 1 / 3,
+        map_share: float = 0.25,
     ) -> None:
         self.slam, self.lockstep, self.log = slam, lockstep, log
         self.track_enabled, self.map_enabled = track, map
@@ -108,6 +113,7 @@ class SlamPipeline:
         # live on the CPU: tracking and mapping take turns instead of sharing the cores (see the module doc)
         self._share_cpu = not lockstep and track and map and slam.device.type == "cpu"
         self._map_turn_until = 0.0  # time.monotonic() until which mapping may run before the next frame
+        self._map_share = map_share
         self._map_in_step = False  # the mapping thread is computing (between two of its pause points)
         self._map_steps = 0  # steps the current mapping job has made
         # live: a job with a newer one waiting ends after this many steps (0 when it may not end early)
@@ -189,9 +195,9 @@ class SlamPipeline:
                 self._error("tracking", err)
                 outcome = None
             with self._cv:
-                if self._share_cpu:  # mapping's turn: as long as this frame's tracking took
+                if self._share_cpu:  # mapping's turn: a share of this frame's tracking time
                     now = time.monotonic()
-                    self._map_turn_until = now + (now - started)
+                    self._map_turn_until = now + self._map_share * (now - started)
                 if outcome is not None:
                     self.stats.tracked += 1
                     self.stats.tracking_failures += int(outcome.failed)
