@@ -27,6 +27,7 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
@@ -36,6 +37,7 @@ from bags.layout import BagTopics
 from bags.mcap_index import MessageRef
 from bags.reader import bag_file, open_index, read_metadata
 from msg_adapters import stamp_to_ns
+from sgs_slam_ros.runtime import stop_on_signals
 
 __all__ = ["RESET_SERVICES", "BagPlayer", "PlayStats", "main"]
 
@@ -242,43 +244,55 @@ def main(args: list[str] | None = None) -> int:
     """Entry point of ``bag_player``; Ctrl-C stops cleanly."""
     argv = list(sys.argv if args is None else args)
     opts = _parse(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C stops play before the context
     executor = MultiThreadedExecutor(num_threads=2)
-    player = spinner = None
-    try:
-        player = BagPlayer(opts.bag, opts.rate, opts.loop, opts.start, opts.lockstep, opts.pose_topic, opts.timeout,
-                           opts.clock)  # fmt: skip
-        executor.add_node(player)
-        # Not a daemon, and joined below: a daemon thread still inside rcl_wait when the interpreter
-        # finalises aborts the process ("terminate called without an active exception", ~1 exit in 15).
-        spinner = threading.Thread(target=executor.spin, name="bag_player-executor")
-        spinner.start()
-        if opts.reset or opts.reset_service:
-            services = opts.reset_service or RESET_SERVICES
-            done = player.reset_slam(services)
-            player.get_logger().info(f"reset {', '.join(done) if done else 'nothing'} before playing")
-        if not player.wait_for_subscribers(opts.wait):
-            player.get_logger().warn(
-                f"nobody subscribes to {player.topics.color} after {opts.wait:g} s; playing anyway"
-            )
-        stats = player.play()
-        player.get_logger().info(
-            f"done: {stats.frames} frames, {stats.messages} messages, {stats.lockstep_timeouts} timeouts"
-        )
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (BagError, ValueError) as err:
-        print(f"bag_player: error: {err}", file=sys.stderr)
-        return 1
-    finally:
+    player: BagPlayer | None = None
+    spinner = None
+    stopped = threading.Event()
+
+    def on_signal() -> None:
+        stopped.set()
         if player is not None:
             player.stop()
-        executor.shutdown()
-        if spinner is not None:
-            spinner.join(timeout=10.0)
-        if player is not None:
-            player.destroy_node()
-        rclpy.try_shutdown()
+
+    with stop_on_signals(on_signal):
+        try:
+            player = BagPlayer(opts.bag, opts.rate, opts.loop, opts.start, opts.lockstep, opts.pose_topic,
+                               opts.timeout, opts.clock)  # fmt: skip
+            if stopped.is_set():  # the signal came while the bag was being indexed
+                return 0
+            executor.add_node(player)
+            # Not a daemon, and joined below: a daemon thread still inside rcl_wait when the interpreter
+            # finalises aborts the process ("terminate called without an active exception", ~1 exit in 15).
+            spinner = threading.Thread(target=executor.spin, name="bag_player-executor")
+            spinner.start()
+            if opts.reset or opts.reset_service:
+                services = opts.reset_service or RESET_SERVICES
+                done = player.reset_slam(services)
+                player.get_logger().info(f"reset {', '.join(done) if done else 'nothing'} before playing")
+            if not player.wait_for_subscribers(opts.wait) and not stopped.is_set():
+                player.get_logger().warn(
+                    f"nobody subscribes to {player.topics.color} after {opts.wait:g} s; playing anyway"
+                )
+            stats = player.play()
+            player.get_logger().info(
+                f"{'stopped' if stopped.is_set() else 'done'}: {stats.frames} frames, {stats.messages} messages, "
+                f"{stats.lockstep_timeouts} timeouts"
+            )
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        except (BagError, ValueError) as err:
+            print(f"bag_player: error: {err}", file=sys.stderr)
+            return 1
+        finally:
+            if player is not None:
+                player.stop()
+            executor.shutdown()
+            if spinner is not None:
+                spinner.join(timeout=10.0)
+            if player is not None:
+                player.destroy_node()
+            rclpy.try_shutdown()
     return 0
 
 

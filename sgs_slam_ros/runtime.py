@@ -26,7 +26,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from sgs_slam_core.errors import SgsSlamError
 
-__all__ = ["USER_ERRORS", "run_nodes"]
+__all__ = ["USER_ERRORS", "run_nodes", "stop_on_signals"]
 
 # what a user's command line can cause while the nodes are built
 USER_ERRORS = (ValueError, SgsSlamError, ParameterException)
@@ -35,17 +35,23 @@ POLL_S = 0.1  # how long the spin loop waits for work before it looks at the sto
 
 
 @contextmanager
-def _stop_on_signals(stop: threading.Event) -> Iterator[None]:
-    """While inside, SIGINT/SIGTERM set ``stop``; a second one exits the process (code 130)."""
+def stop_on_signals(on_signal: Callable[[], None]) -> Iterator[None]:
+    """While inside, the first SIGINT/SIGTERM calls ``on_signal``; a second one exits the process (code 130).
+
+    Use with ``rclpy.init(signal_handler_options=SignalHandlerOptions.NO)``, so that the context
+    stays valid until the caller has stopped what publishes on it.
+    """
     if threading.current_thread() is not threading.main_thread():  # Python allows handlers only there
         yield
         return
+    signalled = threading.Event()
 
     def handle(signum: int, _frame: object) -> None:
-        if stop.is_set():
-            print("second signal: exiting without waiting for the SLAM workers", file=sys.stderr)
+        if signalled.is_set():
+            print("second signal: exiting without waiting for the workers", file=sys.stderr)
             os._exit(130)
-        stop.set()
+        signalled.set()
+        on_signal()
 
     previous = {s: signal.signal(s, handle) for s in STOP_SIGNALS}
     try:
@@ -71,7 +77,7 @@ def run_nodes(build: Callable[[], Sequence[Node]], args: Sequence[str] | None = 
     nodes: Sequence[Node] = ()
     executor = MultiThreadedExecutor(num_threads=threads)
     stop = threading.Event()
-    with _stop_on_signals(stop):
+    with stop_on_signals(stop.set):
         try:
             nodes = build()
             for node in nodes:

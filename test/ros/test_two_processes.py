@@ -5,10 +5,13 @@ import random
 import signal
 import subprocess
 import sys
+import threading
+import time
 
 import pytest
 from sensor_msgs.msg import PointCloud2
 
+from bags import convert
 from sgs_slam_core.datasets import open_dataset
 
 from .helpers import FAST, Feeder, Spinner, new_context, wait_for
@@ -87,3 +90,29 @@ def test_a_signal_while_mapping_runs_exits_cleanly(tiny_scene, signum):
         ctx.try_shutdown()
     assert node.returncode == 0, output
     assert "Traceback" not in output, output
+
+
+def test_bag_player_stops_on_a_signal_mid_play(tiny_scene, tmp_path):
+    """Ctrl-C while it publishes: play stops first, then the context goes (was: an RCLError traceback)."""
+    bag = tmp_path / "bag"
+    convert(open_dataset(tiny_scene), bag)
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
+    command = [sys.executable, "-m", "sgs_slam_ros.bag_player", str(bag), "--loop", "--wait", "0", "--rate", "20"]
+    proc = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)  # one line at a time
+    reader.start()
+    try:
+        assert wait_for(lambda: any("playing anyway" in line for line in lines) or proc.poll() is not None, 60.0)
+        time.sleep(2.0)  # looping at 20x: publishing all the time
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        reader.join(10.0)
+    output = "".join(lines)
+    assert proc.returncode == 0, output
+    assert "Traceback" not in output and "stopped:" in output, output
