@@ -1,6 +1,6 @@
 """Camera model and rigid-body maths."""
 
-from sgs_slam_core.geometry.camera import Intrinsics, backproject, pixel_grid
+from sgs_slam_core.geometry.camera import Intrinsics, backproject, pixel_grid, vertex_map
 from sgs_slam_core.geometry.se3 import (
     quat_multiply,
     quat_normalize,
@@ -31,4 +31,5 @@ __all__ = [
     "so3_exp",
     "so3_log",
     "transform_points",
+    "vertex_map",
 ]

@@ -15,7 +15,7 @@ from torch import Tensor
 
 from sgs_slam_core.errors import ShapeError
 
-__all__ = ["Intrinsics", "backproject", "pixel_grid"]
+__all__ = ["Intrinsics", "backproject", "pixel_grid", "vertex_map"]
 
 
 @dataclass(frozen=True)
@@ -86,6 +86,15 @@ def pixel_grid(height: int, width: int, device: torch.device | str = "cpu") -> t
     return u, v
 
 
+def vertex_map(depth: Tensor, intrinsics: Intrinsics) -> Tensor:  # [H, W] m, 0 = invalid -> [H, W, 3]
+    """Camera-frame point of every pixel, 0 where the depth is not finite and positive (fixed shape)."""
+    if depth.shape != intrinsics.shape:
+        raise ShapeError(f"depth is {tuple(depth.shape)} but intrinsics are {intrinsics.shape}")
+    z = torch.where(torch.isfinite(depth) & (depth > 0), depth, 0.0)
+    u, v = (t.to(depth.dtype) for t in pixel_grid(intrinsics.height, intrinsics.width, depth.device))
+    return torch.stack([(u - intrinsics.cx) / intrinsics.fx * z, (v - intrinsics.cy) / intrinsics.fy * z, z], dim=-1)
+
+
 def backproject(
     depth: Tensor,  # [H, W] metres, 0 = invalid
     intrinsics: Intrinsics,
@@ -96,14 +105,9 @@ def backproject(
     Points are in the camera frame, or in the world frame when ``c2w`` is given. A pixel is valid
     when its depth is finite and positive.
     """
-    if depth.shape != intrinsics.shape:
-        raise ShapeError(f"depth is {tuple(depth.shape)} but intrinsics are {intrinsics.shape}")
-    mask = torch.isfinite(depth) & (depth > 0)
-    u, v = pixel_grid(intrinsics.height, intrinsics.width, depth.device)
-    z = depth[mask]
-    x = (u[mask].to(depth.dtype) - intrinsics.cx) / intrinsics.fx * z
-    y = (v[mask].to(depth.dtype) - intrinsics.cy) / intrinsics.fy * z
-    points = torch.stack([x, y, z], dim=-1)
+    points = vertex_map(depth, intrinsics)
+    mask = points[..., 2] > 0
+    points = points[mask]
     if c2w is not None:
         c2w = c2w.to(points)
         points = points @ c2w[:3, :3].T + c2w[:3, 3]

@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from sgs_slam_core.errors import ShapeError
-from sgs_slam_core.geometry.camera import Intrinsics, pixel_grid
+from sgs_slam_core.geometry.camera import Intrinsics, vertex_map
 from sgs_slam_core.geometry.se3 import se3_exp
 
 __all__ = ["IcpLevel", "IcpResult", "IcpSettings", "align_depth", "icp_pyramid"]
@@ -94,14 +94,8 @@ def _half(intrinsics: Intrinsics) -> Intrinsics:
     return Intrinsics(k.fx / 2, k.fy / 2, k.cx / 2, k.cy / 2, (k.width + 1) // 2, (k.height + 1) // 2)
 
 
-def _vertices(depth: Tensor, intrinsics: Intrinsics) -> Tensor:  # [H, W] m -> [H, W, 3], 0 where invalid
-    z = torch.where(torch.isfinite(depth) & (depth > 0), depth, 0.0)
-    u, v = pixel_grid(intrinsics.height, intrinsics.width, depth.device)
-    return torch.stack([(u - intrinsics.cx) / intrinsics.fx * z, (v - intrinsics.cy) / intrinsics.fy * z, z], -1)
-
-
 def _level(depth: Tensor, intrinsics: Intrinsics) -> IcpLevel:  # depth [H, W] m
-    vertices = _vertices(depth, intrinsics)
+    vertices = vertex_map(depth, intrinsics)
     valid = vertices[..., 2] > 0
     # central differences inside a one-pixel border; every neighbour must be valid
     dx = vertices[1:-1, 2:] - vertices[1:-1, :-2]
@@ -194,7 +188,7 @@ def align_depth(
     for (d, k), ref, steps in zip(_scales(depth, intrinsics, len(iterations)), reference, iterations, strict=True):
         if k.shape != ref.intrinsics.shape:
             raise ShapeError(f"source level is {k.shape}, reference level {ref.intrinsics.shape}")
-        points.append(_vertices(d, k).reshape(-1, 3))
+        points.append(vertex_map(d, k).reshape(-1, 3))
         for _ in range(steps):
             pose = _gauss_newton_step(pose, points[-1], ref, s)
     _, _, r, inliers = _correspondences(pose, points[-1], reference[-1], s.max_distance_m)

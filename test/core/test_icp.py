@@ -1,4 +1,4 @@
-"""Depth ICP: recovers a known motion inside a ray-cast room, keeps unconstrained directions, fails safe."""
+"""Depth ICP: recovers a known motion inside a ray-cast box, keeps unconstrained directions, fails safe."""
 
 from __future__ import annotations
 
@@ -9,29 +9,26 @@ import pytest
 import torch
 
 from sgs_slam_core.errors import ShapeError
-from sgs_slam_core.geometry.camera import Intrinsics, pixel_grid
+from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.icp import IcpSettings, align_depth, icp_pyramid
 from sgs_slam_core.geometry.se3 import se3_exp
+from sgs_slam_core.labels import LabelTable
+from sgs_slam_core.synthetic.primitives import Box, RoomShell
+from sgs_slam_core.synthetic.raycast import raycast
+from sgs_slam_core.synthetic.room import Scene
+from sgs_slam_core.synthetic.textures import Material
 
 K = Intrinsics(fx=80.0, fy=80.0, cx=79.5, cy=59.5, width=160, height=120)
-ROOM = (np.array([-2.0, -1.2, -1.0]), np.array([1.5, 1.0, 3.0]))  # axis-aligned box around the camera (m)
+_PLAIN = Material(base=(0.5, 0.5, 0.5))
+# the inside of a box around the camera (m), and a single far wall (the camera looks along +z)
+BOX = Scene((RoomShell(1, _PLAIN, lo=(-2.0, -1.2, -1.0), hi=(1.5, 1.0, 3.0)),), LabelTable.nyu40(),
+            (-2.0, -1.2, -1.0), (1.5, 1.0, 3.0))  # fmt: skip
+WALL = Scene((Box(1, _PLAIN, center=(0.0, 0.0, 3.05), half=(20.0, 20.0, 0.05)),), LabelTable.nyu40(),
+             (-20.0, -20.0, 3.0), (20.0, 20.0, 3.1))  # fmt: skip
 
 
-def room_depth(c2w: np.ndarray, k: Intrinsics = K, planes: str = "box") -> torch.Tensor:  # [H, W] m
-    """Depth from ``c2w`` to the inside of ROOM (``planes="wall"``: only the far wall z = 3, else 0)."""
-    u, v = (t.numpy().astype(np.float64) for t in pixel_grid(k.height, k.width))
-    rays = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], -1)  # z = 1 in the camera
-    dirs = rays @ c2w[:3, :3].T
-    origin = c2w[:3, 3]
-    lo, hi = ROOM
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_exit = np.minimum.reduce([np.where(dirs[..., i] > 0, (hi[i] - origin[i]) / dirs[..., i],
-                                             np.where(dirs[..., i] < 0, (lo[i] - origin[i]) / dirs[..., i], np.inf))
-                                    for i in range(3)])  # fmt: skip
-        if planes == "wall":
-            t_wall = (hi[2] - origin[2]) / dirs[..., 2]
-            t_exit = np.where(np.isclose(t_wall, t_exit), t_wall, 0.0)
-    return torch.from_numpy(t_exit.astype(np.float32))  # the ray's camera z is 1 per unit t: t is the depth
+def room_depth(c2w: np.ndarray, scene: Scene = BOX) -> torch.Tensor:  # [H, W] m, 0 where no hit
+    return torch.from_numpy(raycast(scene, K, c2w, supersample=1)[1])
 
 
 def pose(rho: tuple[float, float, float], phi_deg: tuple[float, float, float]) -> np.ndarray:  # [4, 4]
@@ -47,9 +44,9 @@ def errors(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:  # (m, deg)
 DEFAULT = IcpSettings()
 
 
-def align(ref_c2w, src_c2w, init, s=DEFAULT, planes="box"):
-    ref = icp_pyramid(room_depth(ref_c2w, planes=planes), K, len(s.steps_for(K.width)))
-    return align_depth(room_depth(src_c2w, planes=planes), K, ref, torch.as_tensor(init), s)
+def align(ref_c2w, src_c2w, init, s=DEFAULT, scene=BOX):
+    ref = icp_pyramid(room_depth(ref_c2w, scene), K, len(s.steps_for(K.width)))
+    return align_depth(room_depth(src_c2w, scene), K, ref, torch.as_tensor(init), s)
 
 
 def test_recovers_a_motion_of_several_frames_from_no_prior():
@@ -68,7 +65,7 @@ def test_directions_the_geometry_does_not_constrain_stay_at_the_prediction():
     """Only a flat wall in view: sliding along it changes nothing, so the prediction's slide is kept."""
     motion = pose((0.0, 0.0, 0.04), (0.0, 0.0, 0.0))
     init = pose((0.03, 0.0, 0.0), (0.0, 0.0, 0.0))  # right depth-wise, 3 cm off along the wall
-    res = align(np.eye(4), motion, init, planes="wall").src_to_ref.numpy()
+    res = align(np.eye(4), motion, init, scene=WALL).src_to_ref.numpy()
     assert abs(res[2, 3] - 0.04) < 1e-3  # the distance to the wall is recovered
     assert abs(res[0, 3] - 0.03) < 2e-3  # the slide stays where the prediction put it
 
