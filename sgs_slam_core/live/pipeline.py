@@ -5,16 +5,20 @@ both drive it. Callers only hand over frames; the work happens on two worker thr
 
 - **Live** (default): a queue of one, as a live camera's. A frame that arrives while an older one
   still waits for the tracker replaces it (counted in ``stats.dropped_frames``); mapping jobs
-  likewise (``stats.dropped_jobs``). Tracking of new frames overlaps with mapping of older ones; the map object is
-  immutable and replaced whole, so the tracker always renders one consistent map version.
+  likewise (``stats.dropped_jobs``). The map object is immutable and replaced whole, so the
+  tracker always renders one consistent map version. A frame being tracked when a newer one
+  arrives ends its tracking after ``tracking.min_iterations`` steps: the camera has moved on.
 - **Lockstep**: every frame is kept and frame t is tracked only after frame t-1 is mapped (or, with
   a separate mapping process, after ``ready_to_track`` says its map has arrived).
 
-Live on the CPU, the two workers take turns instead of running their kernels at the same time (two
-thread teams on a few cores slow each other down, measured): after each tracked frame mapping may
-run for a quarter of the time that frame's tracking took (``map_share``), then it pauses between
-its steps while a frame is being tracked or waits to be; a frame whose turn comes while a mapping
-step runs waits for that step to end. On CUDA the mapping thread runs on its own stream, beside tracking.
+Live on the CPU, tracking and mapping alternate instead of running their kernels at the same time
+(two thread teams on a few cores slow each other down, measured). A tracked frame's mapping job
+makes its turn of steps (``map_turn_fraction`` of ``mapping.iterations``), goes on while no frame
+waits, and ends (publishing its map) at the first step boundary after its turn where one does;
+then that frame is tracked. So every tracked frame is in the map the next one is tracked
+against, and a slow machine tracks fewer frames rather than tracking against a stale map.
+On CUDA the mapping thread runs on its own stream, beside tracking, and a job ends early when a
+newer one waits and it made ``preempt_fraction`` of its steps.
 Two synchronisations make that safe: ``Slam`` finishes a side stream's work before it publishes a
 map (``Slam._set_gaussians``), and tracking reads its result back to the host before it returns,
 so no tensor is freed while a kernel of the other thread may still read it.
@@ -76,13 +80,15 @@ class SlamPipeline:
 
     ``track`` / ``map``: which workers run here (a standalone tracking or mapping node runs one).
     ``ready_to_track(frames_tracked)``: an extra lockstep condition (a remote map has caught up).
-    ``map_share``: live on the CPU, mapping's turn after a tracked frame, as a fraction of that
-    frame's tracking time. On the room at 10 Hz (2 cores) 1 tracked 52/200 frames, 0.5 76/200, 0.25
-    105/200, all at ATE 3.4 cm (BENCHMARKS.md): mapping's share did not move the trajectory, and
-    a live robot wants poses.
-    ``preempt_fraction``: live, a mapping job ends once it has made this fraction of its iterations
-    and a newer frame waits to be mapped (so every frame mapped densifies the map, and mapping keeps
-    near the camera instead of finishing old frames); 1 never ends a job early.
+    ``map_turn_fraction``: live on the CPU, the steps a tracked frame's mapping job makes before the
+    next frame is tracked, as a fraction of ``mapping.iterations`` (rounded up). On the room at
+    10 Hz (2 cores) a tenth tracked 116 of 200 frames at ATE 0.55 cm; a turn in time instead (a
+    share of the frame's tracking time, with tracking beside an unfinished job) tracked about half
+    at 3.4-4.0 cm (BENCHMARKS.md).
+    ``preempt_fraction``: live with mapping on its own stream (CUDA), a mapping job ends once it has
+    made this fraction of its iterations and a newer frame waits to be mapped (so every frame mapped
+    densifies the map, and mapping keeps near the camera instead of finishing old frames); 1 never
+    ends a job early.
     Listeners are called on the worker threads; one that raises is logged and counted.
     """
 
@@ -95,7 +101,7 @@ class SlamPipeline:
         log: Callable[[str], None] = print,
         ready_to_track: Callable[[int], bool] | None = None,
         preempt_fraction: float = 1 / 3,
-        map_share: float = 0.25,
+        map_turn_fraction: float = 1 / 10,
     ) -> None:
         self.slam, self.lockstep, self.log = slam, lockstep, log
         self.track_enabled, self.map_enabled = track, map
@@ -112,12 +118,12 @@ class SlamPipeline:
         self._map_stream = torch.cuda.Stream(slam.device) if slam.device.type == "cuda" else None
         # live on the CPU: tracking and mapping take turns instead of sharing the cores (see the module doc)
         self._share_cpu = not lockstep and track and map and slam.device.type == "cpu"
-        self._map_turn_until = 0.0  # time.monotonic() until which mapping may run before the next frame
-        self._map_share = map_share
-        self._map_in_step = False  # the mapping thread is computing (between two of its pause points)
+        iterations = slam.config.mapping.iterations
+        # live on the CPU: steps of a tracked frame's job before the next frame is tracked
+        self._turn_steps = math.ceil(map_turn_fraction * iterations) if self._share_cpu else 0
         self._map_steps = 0  # steps the current mapping job has made
-        # live: a job with a newer one waiting ends after this many steps (0 when it may not end early)
-        self._preempt_steps = 0 if lockstep else math.ceil(preempt_fraction * slam.config.mapping.iterations)
+        # live beside tracking: a job with a newer one waiting ends after this many steps (0: it never does)
+        self._preempt_steps = 0 if lockstep or self._share_cpu else math.ceil(preempt_fraction * iterations)
         self._threads = []
         if track:
             self._threads.append(threading.Thread(target=self._track_loop, name="sgs-track", daemon=True))
@@ -162,42 +168,39 @@ class SlamPipeline:
                 return True
             if self.slam.num_gaussians == 0 and not self._mapping_idle():
                 return False  # the first frame's Gaussians are being made
-            if self._share_cpu and self._map_in_step:
-                return False  # the cores are mapping's until its step ends: never both at once
-            return self._mapping_idle() or time.monotonic() >= self._map_turn_until
+            if self._share_cpu:  # never both at once: the last tracked frame's job ends (and publishes) first
+                return not (self._jobs or self._busy["map"])
+            return True
         if self.map_enabled and not self._mapping_idle():
             return False
         return self.ready_to_track is None or self.ready_to_track(self.slam.frames_processed)
 
-    def _track_wait_s(self) -> float:
-        """Seconds the tracker sleeps before it looks again.
+    def _frame_waiting(self) -> bool:
+        """A newer frame waits to be tracked (live: the one being tracked may end early)."""
+        with self._cv:
+            return bool(self._frames)
 
-        Until mapping's turn ends (a clock, not an event), else 0.5 s (every other change notifies).
-        """
-        remaining = self._map_turn_until - time.monotonic()
-        return min(0.5, max(0.001, remaining)) if remaining > 0 else 0.5
+    def _in_turn(self) -> bool:
+        """The mapping job in progress has not yet made its turn of steps (live on the CPU)."""
+        return self._map_steps < self._turn_steps
 
     def _track_loop(self) -> None:
         while True:
             with self._cv:
-                self._cv.wait_for(lambda: not self._running or (self._frames and self._can_track()),
-                                  timeout=self._track_wait_s())  # fmt: skip
+                # every change the tracker waits for notifies; the timeout is a safety net
+                self._cv.wait_for(lambda: not self._running or (self._frames and self._can_track()), timeout=0.5)
                 if not self._running:
                     return
                 if not self._frames or not self._can_track():
                     continue
                 received_at, frame = self._frames.popleft()
                 self._busy["track"] = True
-            started = time.monotonic()
             try:
-                outcome = self.slam.track(frame)
+                outcome = self.slam.track(frame, None if self.lockstep else self._frame_waiting)
             except Exception as err:
                 self._error("tracking", err)
                 outcome = None
             with self._cv:
-                if self._share_cpu:  # mapping's turn: a share of this frame's tracking time
-                    now = time.monotonic()
-                    self._map_turn_until = now + self._map_share * (now - started)
                 if outcome is not None:
                     self.stats.tracked += 1
                     self.stats.tracking_failures += int(outcome.failed)
@@ -221,7 +224,6 @@ class SlamPipeline:
                     continue
                 job = self._jobs.popleft()
                 self._busy["map"] = True
-                self._map_in_step = True
                 self._map_steps = 0
             result, tracked = None, job.tracked
             try:
@@ -234,7 +236,6 @@ class SlamPipeline:
                 self._error("mapping", err)
             with self._cv:
                 self._busy["map"] = False
-                self._map_in_step = False
                 self.stats.mapped += int(result is not None)
                 self._cv.notify_all()
             if result is not None and tracked is not None:
@@ -243,26 +244,17 @@ class SlamPipeline:
     def _between_map_steps(self) -> bool:
         """Before each mapping step: raise when shutting down, return False to end the job here.
 
-        The job ends early live, when a newer job waits and this one made its share of steps.
-        Live on the CPU, mapping goes on during its turn, else waits while tracking has work.
+        The job ends early live: on its own stream when a newer job waits and this one made its
+        share of steps; on the CPU when a frame waits to be tracked and this job made its turn
+        (tracking waits for the job to end, so the next frame meets the map with this frame in it).
         """
         with self._cv:
-            if self._share_cpu:
-                self._map_in_step = False
-                self._cv.notify_all()  # a tracker waiting for this step to end
-                self._cv.wait_for(
-                    lambda: (
-                        not self._running
-                        or time.monotonic() < self._map_turn_until
-                        or not (self._busy["track"] or (self._frames and self._can_track()))
-                    ),
-                    timeout=10.0,
-                )
             if not self._running:
                 raise _StoppingError
+            if self._share_cpu and self._frames and not self._in_turn():
+                return False
             if self._preempt_steps and self._jobs and self._map_steps >= self._preempt_steps:
                 return False
-            self._map_in_step = True
             self._map_steps += 1
             return True
 

@@ -69,6 +69,8 @@ def map_window(
 ) -> MapResult:
     """``s.iterations`` Adam steps (fresh optimiser), each on one frame drawn uniformly from the window.
 
+    The first ``s.current_frame_steps`` steps take the window's last frame (the newest) instead.
+
     Gaussians of ``frozen_labels`` are left exactly as they are. ``between_iterations`` is called
     before each step (live operation: it returns when mapping may go on); when it returns False the
     window ends there and the map keeps the steps made so far (a newer frame is waiting).
@@ -80,7 +82,7 @@ def map_window(
     for it in range(s.iterations):
         if between_iterations is not None and not between_iterations():
             break
-        wf = window[int(rng.integers(len(window)))]
+        wf = window[-1] if it < s.current_frame_steps else window[int(rng.integers(len(window)))]
         semantic = use_semantics and wf.data.semantic is not None
         with record_function("map.render"):
             out = render(opt.gaussians(), wf.data.intrinsics, wf.w2c, render_settings, with_semantics=semantic)

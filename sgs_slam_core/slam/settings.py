@@ -39,7 +39,9 @@ class TrackingSettings:
         stop_rel_improvement: an iteration "improves" when it lowers the best loss by more than this
             fraction.
         stop_patience: iterations without improvement that end tracking.
-        min_iterations: never stop before this many steps.
+        min_iterations: never stop before this many steps. The patience test cannot stop before
+            step ``stop_patience + 1`` anyway, so below that this only bounds how soon live
+            tracking ends when a newer frame waits (the pipeline's ``newer_frame_waiting``).
         stop_check_every: read the stop test back from the device every n steps (0 = auto: every
             step on the CPU, where reading is free, every 5 on CUDA, so the loop does not wait on the GPU).
         constant_velocity: initialise from the last two poses (else from the last pose).
@@ -67,7 +69,7 @@ class TrackingSettings:
     early_stop: bool = True
     stop_rel_improvement: float = 1e-3
     stop_patience: int = 5
-    min_iterations: int = 5
+    min_iterations: int = 2
     stop_check_every: int = 0
     constant_velocity: bool = True
     icp_iterations: tuple[int, ...] = (6, 4, 3)
@@ -107,6 +109,10 @@ class MappingSettings:
 
     Attributes:
         iterations: optimiser steps per mapped frame; each renders one random window frame.
+        current_frame_steps: the first this many steps render the newest frame (the one just
+            tracked, whose new Gaussians the next frame is tracked against), the rest a random window
+            frame; 0 = every step random, as the reference. Matters when a frame gets few steps
+            (live on a slow machine: BENCHMARKS.md).
         every: map every n-th frame (1 = every frame, as the reference).
         lr_*: Adam learning rates per Gaussian field (eps 1e-15, as the reference).
         weight_depth, weight_color, weight_semantic: loss weights.
@@ -120,6 +126,7 @@ class MappingSettings:
     """
 
     iterations: int = 60
+    current_frame_steps: int = 0
     every: int = 1
     lr_means: float = 1e-4
     lr_colors: float = 2.5e-3
@@ -138,7 +145,8 @@ class MappingSettings:
     refresh_labels: bool = True
 
     def __post_init__(self) -> None:
-        _non_negative("mapping", iterations=self.iterations, weight_depth=self.weight_depth,
+        _non_negative("mapping", iterations=self.iterations, current_frame_steps=self.current_frame_steps,
+                      weight_depth=self.weight_depth,
                       weight_color=self.weight_color, weight_semantic=self.weight_semantic)  # fmt: skip
         _positive("mapping", every=self.every, lr_means=self.lr_means, lr_colors=self.lr_colors,
                   lr_semantics=self.lr_semantics, lr_opacities=self.lr_opacities, lr_scales=self.lr_scales,

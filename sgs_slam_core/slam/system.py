@@ -176,8 +176,11 @@ class Slam:
                           mapped.keyframe, mapped.added, self.num_gaussians, tracked.failed, tracked.failure_reason,
                           tracked.time_s, mapped.time_s, timings)  # fmt: skip
 
-    def track(self, frame: Frame) -> TrackOutcome:
-        """Estimate the pose of ``frame`` against the current map (frame 0 gets ``initial_c2w``)."""
+    def track(self, frame: Frame, newer_frame_waiting: Callable[[], bool] | None = None) -> TrackOutcome:
+        """Estimate the pose of ``frame`` against the current map (frame 0 gets ``initial_c2w``).
+
+        ``newer_frame_waiting`` (live): once it returns True, tracking ends after its minimum steps.
+        """
         self._validate(frame)
         t0 = time.perf_counter()
         index = self.frames_processed
@@ -199,7 +202,7 @@ class Slam:
             c2w = self.trajectory[-1][2].copy() if self.trajectory else self.initial_c2w.copy()  # no map yet
         else:
             data = self._frame_tensors(frame)
-            tracking = self._track(data, frame)
+            tracking = self._track(data, frame, newer_frame_waiting)
             c2w = np.linalg.inv(tracking.w2c)
             failure = self.guard.check(tracking.depth_residual_m, tracking.loss_per_pixel, tracking.valid_fraction)
         if self._icp is not None and failure is None:  # the next frame's ICP reference
@@ -381,7 +384,7 @@ class Slam:
             raise FrameError("use_gt_pose needs ground truth on the first frame too")
         return self.initial_c2w @ np.linalg.inv(self._gt_origin) @ gt_c2w
 
-    def _track(self, data: FrameTensors, frame: Frame) -> TrackResult:
+    def _track(self, data: FrameTensors, frame: Frame, newer_frame_waiting: Callable[[], bool] | None) -> TrackResult:
         poses = [*self._resumed_poses, *(c2w for _, _, c2w in self.trajectory[-2:])]  # a resumed map goes on moving
         prev = poses[-1] if poses else self.initial_c2w
         prev2 = poses[-2] if len(poses) > 1 and self.config.tracking.constant_velocity else None
@@ -389,7 +392,8 @@ class Slam:
         if self._icp is not None and self._intervals_since_last(frame.stamp_ns) >= self.config.tracking.icp_min_gap:
             init_c2w, _ = self._icp.refine(torch.where(data.valid, data.depth, 0.0), data.intrinsics, init_c2w)
         use_sem = frame.labels is not None and self.config.tracking.weight_semantic > 0
-        return track(self.gaussians, data, np.linalg.inv(init_c2w), self.config.tracking, self.config.render, use_sem)
+        return track(self.gaussians, data, np.linalg.inv(init_c2w), self.config.tracking, self.config.render, use_sem,
+                     newer_frame_waiting)  # fmt: skip
 
     def _intervals_since_last(self, stamp_ns: int) -> float:
         """Camera frame intervals since the last tracked frame: about 1 when none was dropped, 0 unknown.

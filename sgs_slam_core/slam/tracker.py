@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,13 +44,16 @@ def track(
     s: TrackingSettings,
     render_settings: RenderSettings,
     use_semantics: bool,
+    newer_frame_waiting: Callable[[], bool] | None = None,
 ) -> TrackResult:
     """Adam on a camera-frame se(3) increment with a fresh optimiser, keeping the best evaluated pose.
 
     Unlike the reference, the stored best pose is the one that produced the best loss (no
     off-by-one), and tracking stops early once ``stop_patience`` iterations in a row fail to lower
     the best loss by more than ``stop_rel_improvement``. The best pose and the stop counter live on
-    the device; the host reads them every ``stop_check_every`` steps only.
+    the device; the host reads them every ``stop_check_every`` steps only. Live,
+    ``newer_frame_waiting`` (asked at those reads) ends tracking after ``min_iterations`` once it
+    returns True: the camera has moved on, and the frame's time is spent.
     """
     t0 = time.perf_counter()
     fixed = gaussians.detach()
@@ -71,6 +75,8 @@ def track(
                 break
             if s.early_stop and it >= s.min_iterations and stale >= s.stop_patience:
                 converged = True
+                break
+            if it >= s.min_iterations and newer_frame_waiting is not None and newer_frame_waiting():
                 break
         with record_function("track.backward"):
             loss.total.backward()

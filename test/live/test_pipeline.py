@@ -24,14 +24,17 @@ from ..conftest import FAST_SLAM
 class GatedSlam:
     """Stands in for Slam: tracking blocks until released, so the test decides what is busy when."""
 
-    def __init__(self) -> None:
-        self.device = torch.device("cpu")
-        self.config = SimpleNamespace(mapping=SimpleNamespace(iterations=20))  # live: a job may end after 7
+    def __init__(self, device: str = "cpu") -> None:
+        self.device = torch.device(device)
+        # live: a job's turn on the CPU is ceil(20 / 10) = 2 steps; elsewhere it may end after ceil(20 / 3) = 7
+        self.config = SimpleNamespace(mapping=SimpleNamespace(iterations=20))
         self.frames_processed, self.num_gaussians = 0, 0
         self.gate = threading.Semaphore(0)
         self.tracked: list[int] = []
+        self.asks: list = []  # per tracked frame: the newer_frame_waiting it was given
 
-    def track(self, frame):
+    def track(self, frame, newer_frame_waiting=None):
+        self.asks.append(newer_frame_waiting)
         self.gate.acquire()
         self.tracked.append(frame.index)
         self.frames_processed += 1
@@ -45,15 +48,16 @@ class GatedSlam:
 class TimedSlam(GatedSlam):
     """Tracking takes 30 ms; mapping runs up to 20 steps of 5 ms; each records whether the other ran."""
 
-    def __init__(self) -> None:
-        super().__init__()
-        self.tracking_now = self.mapping_now = False
-        self.steps_during_tracking = self.tracks_during_steps = 0
+    def __init__(self, device: str = "cpu") -> None:
+        super().__init__(device)
+        self.tracking_now = self.mapping_now = self.job_now = False
+        self.steps_during_tracking = self.tracks_during_steps = self.tracks_during_jobs = 0
         self.steps = 0
         self.job_steps: list[int] = []
 
-    def track(self, frame):
+    def track(self, frame, newer_frame_waiting=None):
         self.tracks_during_steps += int(self.mapping_now)
+        self.tracks_during_jobs += int(self.job_now)
         self.tracking_now = True
         time.sleep(0.03)
         self.tracking_now = False
@@ -62,7 +66,7 @@ class TimedSlam(GatedSlam):
 
     def map(self, frame, tracked, between_iterations=None):
         self.num_gaussians += 1
-        steps = 0
+        self.job_now, steps = True, 0
         for _ in range(20):
             if between_iterations is not None and not between_iterations():
                 break
@@ -73,6 +77,7 @@ class TimedSlam(GatedSlam):
             self.steps += 1
             steps += 1
         self.job_steps.append(steps)
+        self.job_now = False
         return SimpleNamespace()
 
 
@@ -112,9 +117,25 @@ def test_live_on_the_cpu_mapping_steps_never_start_while_a_frame_is_tracked():
         pipeline.shutdown()
 
 
-@pytest.mark.parametrize("lockstep", [False, True])
-def test_live_a_mapping_job_with_a_newer_one_waiting_ends_after_a_third_of_its_steps(lockstep):
+def test_live_on_the_cpu_a_tracked_frames_job_makes_its_turn_then_ends_for_the_next_frame():
     slam = TimedSlam()
+    pipeline = SlamPipeline(slam, lockstep=False, log=lambda _: None)
+    try:
+        for i in range(12):  # a 100 Hz camera: a frame always waits once a job has made its turn
+            pipeline.submit_frame(SimpleNamespace(index=i))
+            time.sleep(0.01)
+        assert pipeline.wait_idle(20.0)
+        assert slam.tracks_during_jobs == 0  # the next frame meets the map with the last one in it
+        assert slam.job_steps[:-1] == [2] * (len(slam.job_steps) - 1) and len(slam.job_steps) >= 2
+        assert slam.job_steps[-1] == 20  # nothing waits after the last frame: its job runs to the end
+        assert pipeline.stats.dropped_jobs == 0
+    finally:
+        pipeline.shutdown()
+
+
+@pytest.mark.parametrize("lockstep", [False, True])
+def test_with_mapping_on_its_own_stream_a_job_with_a_newer_one_waiting_ends_after_a_third_of_its_steps(lockstep):
+    slam = TimedSlam(device="meta")  # not the CPU: the workers do not take turns (as on CUDA, without its stream)
     pipeline = SlamPipeline(slam, lockstep=lockstep, log=lambda _: None)
     try:
         for i in range(12):  # tracking outpaces mapping: a newer job is always waiting
@@ -130,6 +151,34 @@ def test_live_a_mapping_job_with_a_newer_one_waiting_ends_after_a_third_of_its_s
         pipeline.shutdown()
 
 
+@pytest.mark.parametrize("lockstep", [False, True])
+def test_live_tracking_is_told_when_a_newer_frame_waits(lockstep):
+    slam = GatedSlam()
+    slam.map = lambda frame, tracked, between_iterations=None: setattr(slam, "num_gaussians", 1)
+    pipeline = SlamPipeline(slam, lockstep=lockstep, log=lambda _: None)
+    try:
+        pipeline.submit_frame(SimpleNamespace(index=0))
+        slam.gate.release()
+        assert pipeline.wait_idle(5.0)
+        pipeline.submit_frame(SimpleNamespace(index=1))
+        deadline = time.monotonic() + 5
+        while len(slam.asks) < 2 and time.monotonic() < deadline:  # frame 1 is being tracked
+            time.sleep(0.01)
+        ask = slam.asks[-1]
+        if lockstep:  # every frame is kept, so tracking never ends early
+            assert ask is None
+        else:
+            assert ask() is False
+            pipeline.submit_frame(SimpleNamespace(index=2))  # the camera moves on
+            assert ask() is True
+        for _ in range(2):
+            slam.gate.release()
+        assert pipeline.wait_idle(5.0)
+    finally:
+        slam.gate.release()
+        pipeline.shutdown()
+
+
 class SlowMappingSlam(GatedSlam):
     """Mapping runs 400 steps of 10 ms (4 s) unless the pipeline stops it between steps."""
 
@@ -137,7 +186,7 @@ class SlowMappingSlam(GatedSlam):
         super().__init__()
         self.steps = 0
 
-    def track(self, frame):
+    def track(self, frame, newer_frame_waiting=None):
         self.frames_processed += 1
         return SimpleNamespace(failed=False, index=frame.index)
 
@@ -164,17 +213,6 @@ def test_shutdown_stops_mapping_at_its_next_step(lockstep):
     assert time.monotonic() - started < 2.0 and slam.steps < 200
     assert not any(t.is_alive() for t in pipeline._threads)
     assert pipeline.stats.mapping_errors == 0 and pipeline.stats.mapped == 0  # abandoned, not failed
-
-
-def test_an_idle_tracker_sleeps():
-    """With nothing to do, the tracking thread wakes a few times a second, not every millisecond."""
-    pipeline = SlamPipeline(GatedSlam(), lockstep=True, log=lambda _: None)
-    try:
-        assert pipeline._track_wait_s() == 0.5
-        pipeline._map_turn_until = time.monotonic() + 0.1  # mapping's turn: look again when it ends
-        assert 0.05 < pipeline._track_wait_s() <= 0.1
-    finally:
-        pipeline.shutdown()
 
 
 def test_a_reset_never_maps_a_frame_tracked_before_it():

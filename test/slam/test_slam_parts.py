@@ -8,6 +8,7 @@ from sgs_slam_core.config import load_config
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.geometry import Intrinsics, se3_exp
 from sgs_slam_core.labels import LabelTable
+from sgs_slam_core.render import RenderSettings
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors
 from sgs_slam_core.slam.guard import TrackingGuard
@@ -133,3 +134,29 @@ def test_compact_frames_round_trip_depth_to_a_fifth_of_a_millimetre():
     codec = SemanticCodec(load_config("synthetic").semantic, LabelTable.nyu40())
     t = c.to_tensors(codec, torch.device("cpu"))
     assert isinstance(t, FrameTensors) and t.semantic.shape == (48, 64, 3)
+
+
+def test_the_first_mapping_steps_render_the_newest_window_frame(monkeypatch):
+    from sgs_slam_core.slam import mapper
+
+    gm, k = random_scene(300, 32, 24, seed=1)
+    seen: list[float] = []
+
+    def recording_render(gaussians, intrinsics, w2c, settings, with_semantics):
+        seen.append(float(w2c[0, 3]))  # the frame's x offset identifies it
+        return real_render(gaussians, intrinsics, w2c, settings, with_semantics=with_semantics)
+
+    real_render = mapper.render
+    monkeypatch.setattr(mapper, "render", recording_render)
+    with torch.no_grad():
+        out = real_render(gm, k, torch.eye(4), RenderSettings(backend="torch"))
+    data = FrameTensors(0, k, out.color, out.depth, None, None)
+    window = []
+    for x in (0.0, 0.25, 0.5):  # the last one is the newest frame (exact in float32)
+        w2c = torch.eye(4)
+        w2c[0, 3] = x
+        window.append(mapper.WindowFrame(data, w2c, 1.0))
+    s = MappingSettings(iterations=12, current_frame_steps=5, prune_iterations=())
+    mapper.map_window(gm, window, s, RenderSettings(backend="torch"), 1.0, False, np.random.default_rng(0))
+    assert seen[:5] == [0.5] * 5 and len(seen) == 12
+    assert {0.0, 0.25} <= set(seen[5:])  # then uniformly over the window

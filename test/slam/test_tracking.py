@@ -103,3 +103,16 @@ def test_the_icp_start_runs_after_dropped_frames_only_and_helps_there(tiny_scene
         if icp.startswith("tracking.icp_min_gap"):
             assert len(outcomes) == 1 and outcomes.pop().used
     assert errors[0] < errors[1] and steps[0] < steps[1]  # measured: 2.1 vs 3.1 cm, 14 vs 30 (the cap) steps
+
+
+def test_a_newer_frame_waiting_ends_tracking_after_its_minimum_steps():
+    gm, frame = target_frame()
+    start = se3_exp(torch.tensor([0.02, -0.01, 0.01, 0.01, -0.015, 0.005], dtype=torch.float64)).numpy()
+    s = TrackingSettings(iterations=60, min_iterations=3, lr_rotation=4e-3, lr_translation=4e-3, sil_threshold=0.5)
+    asked: list[int] = []
+    cut = track(gm, frame, start, s, SETTINGS, True, newer_frame_waiting=lambda: asked.append(1) or True)
+    assert cut.iterations == 3 and not cut.converged and len(asked) == 1  # asked from the minimum on only
+    full = track(gm, frame, start, s, SETTINGS, True, newer_frame_waiting=lambda: False)
+    assert full.iterations > 3 and full.loss < cut.loss
+    alone = track(gm, frame, start, dataclasses.replace(s, iterations=3), SETTINGS, True)
+    assert np.array_equal(cut.w2c, alone.w2c)  # the best of the steps made, as a 3-step budget gives
