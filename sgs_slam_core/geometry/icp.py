@@ -172,6 +172,15 @@ def _gauss_newton_step(
     return se3_exp(xi) @ src_to_ref
 
 
+def _truncated_cost(r: Tensor, inliers: Tensor, valid: Tensor, s: IcpSettings) -> Tensor:  # [] float64
+    """Sum over valid source points of min(r^2, (3 huber_m)^2), points without a match counting the cap.
+
+    Comparable between poses, unlike the inlier RMS: a pose that loses hard points does not gain.
+    """
+    cap = (3 * s.huber_m) ** 2
+    return torch.where(inliers, r.double().square().clamp(max=cap), cap * valid.double()).sum()
+
+
 def align_depth(
     depth: Tensor,  # [H, W] m, 0 = invalid: the source (new) frame
     intrinsics: Intrinsics,
@@ -183,7 +192,7 @@ def align_depth(
     iterations = s.steps_for(intrinsics.width)
     if len(reference) != len(iterations):
         raise ShapeError(f"reference pyramid has {len(reference)} levels, settings ask for {len(iterations)}")
-    pose = init_src_to_ref.to(device=depth.device, dtype=torch.float64)
+    init = pose = init_src_to_ref.to(device=depth.device, dtype=torch.float64)
     points = []
     for (d, k), ref, steps in zip(_scales(depth, intrinsics, len(iterations)), reference, iterations, strict=True):
         if k.shape != ref.intrinsics.shape:
@@ -191,8 +200,17 @@ def align_depth(
         points.append(vertex_map(d, k).reshape(-1, 3))
         for _ in range(steps):
             pose = _gauss_newton_step(pose, points[-1], ref, s)
-    _, _, r, inliers = _correspondences(pose, points[-1], reference[-1], s.max_distance_m)
     valid_source = points[-1][:, 2] > 0
+    # Never worse than the start at full resolution: on a view with a weakly constrained direction
+    # the 40x30 level's association can move a right start centimetres away (room frames 172-175,
+    # BENCHMARKS.md), and the finer levels do not bring it back.
+    start_cost = _truncated_cost(
+        *_correspondences(init, points[-1], reference[-1], s.max_distance_m)[2:], valid_source, s
+    )
+    _, _, r, inliers = _correspondences(pose, points[-1], reference[-1], s.max_distance_m)
+    worse = _truncated_cost(r, inliers, valid_source, s) > start_cost
+    pose = torch.where(worse, init, pose)
+    _, _, r, inliers = _correspondences(pose, points[-1], reference[-1], s.max_distance_m)
     stats = torch.stack([inliers.sum().double(), (r.double().square() * inliers).sum(), valid_source.sum().double()])
     count_f, sq_f, total_f = stats.tolist()
     rms = (sq_f / count_f) ** 0.5 if count_f > 0 else float("inf")

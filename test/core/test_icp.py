@@ -93,3 +93,16 @@ def test_float64_pose_on_the_depth_device():
     s = IcpSettings()
     res = align(np.eye(4), pose((0.01, 0.0, 0.0), (0.0, 0.0, 0.0)), np.eye(4), s)
     assert res.src_to_ref.dtype == torch.float64 and res.src_to_ref.device.type == "cpu"
+
+
+def test_a_result_worse_than_the_start_at_full_resolution_is_not_returned(monkeypatch):
+    """A biased coarse level (as on the room's frames 172-175) must not move a right start away."""
+    from sgs_slam_core.geometry import icp
+
+    ref_c2w = pose((0.1, -0.05, 0.2), (2.0, -5.0, 1.0))
+    motion = pose((0.02, 0.0, 0.01), (0.5, 1.0, 0.0))
+    slide = torch.as_tensor(pose((0.05, 0.0, 0.0), (0.0, 0.0, 0.0)))
+    monkeypatch.setattr(icp, "_gauss_newton_step", lambda p, src, ref, s: slide @ p)  # every step slides 5 cm
+    res = align(ref_c2w, ref_c2w @ motion, motion)
+    assert np.allclose(res.src_to_ref.numpy(), motion)  # the start, not 65 cm away
+    assert res.rms_m < 0.005
