@@ -82,9 +82,9 @@ class SlamPipeline:
     ``ready_to_track(frames_tracked)``: an extra lockstep condition (a remote map has caught up).
     ``map_turn_fraction``: live on the CPU, the steps a tracked frame's mapping job makes before the
     next frame is tracked, as a fraction of ``mapping.iterations`` (rounded up). On the room at
-    10 Hz (2 cores) a tenth tracked 116 of 200 frames at ATE 0.55 cm; a turn in time instead (a
-    share of the frame's tracking time, with tracking beside an unfinished job) tracked about half
-    at 3.4-4.0 cm (BENCHMARKS.md).
+    10 Hz (2 cores) a tenth tracked 138 and 139 of 200 frames at ATE 0.41 and 0.43 cm; a turn in
+    time instead (a share of the frame's tracking time, with tracking beside an unfinished job)
+    tracked about half at 3.4-4.0 cm (BENCHMARKS.md).
     ``preempt_fraction``: live with mapping on its own stream (CUDA), a mapping job ends once it has
     made this fraction of its iterations and a newer frame waits to be mapped (so every frame mapped
     densifies the map, and mapping keeps near the camera instead of finishing old frames); 1 never
