@@ -204,13 +204,10 @@ def align_depth(
     # Never worse than the start at full resolution: on a view with a weakly constrained direction
     # the 40x30 level's association can move a right start centimetres away (room frames 172-175,
     # BENCHMARKS.md), and the finer levels do not bring it back.
-    start_cost = _truncated_cost(
-        *_correspondences(init, points[-1], reference[-1], s.max_distance_m)[2:], valid_source, s
-    )
+    _, _, r0, inliers0 = _correspondences(init, points[-1], reference[-1], s.max_distance_m)
     _, _, r, inliers = _correspondences(pose, points[-1], reference[-1], s.max_distance_m)
-    worse = _truncated_cost(r, inliers, valid_source, s) > start_cost
-    pose = torch.where(worse, init, pose)
-    _, _, r, inliers = _correspondences(pose, points[-1], reference[-1], s.max_distance_m)
+    worse = _truncated_cost(r, inliers, valid_source, s) > _truncated_cost(r0, inliers0, valid_source, s)
+    pose, r, inliers = torch.where(worse, init, pose), torch.where(worse, r0, r), torch.where(worse, inliers0, inliers)
     stats = torch.stack([inliers.sum().double(), (r.double().square() * inliers).sum(), valid_source.sum().double()])
     count_f, sq_f, total_f = stats.tolist()
     rms = (sq_f / count_f) ** 0.5 if count_f > 0 else float("inf")

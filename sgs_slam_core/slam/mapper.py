@@ -72,8 +72,8 @@ def map_window(
     The first ``s.current_frame_steps`` steps take the window's last frame (the newest) instead.
 
     Gaussians of ``frozen_labels`` are left exactly as they are. ``between_iterations`` is called
-    before each step (live operation: it returns when mapping may go on); when it returns False the
-    window ends there and the map keeps the steps made so far (a newer frame is waiting).
+    before each step (live operation); when it returns False the window ends there and the map
+    keeps the steps made so far (a newer frame is waiting).
     """
     t0 = time.perf_counter()
     opt = GaussianOptimizer(gaussians, s, frozen_labels)

@@ -236,9 +236,8 @@ class Slam:
     ) -> MapOutcome:
         """Densify, select the window, optimise the map, and keep keyframes (nothing on a failed frame).
 
-        ``between_iterations`` is called before each mapping step (the live pipeline pauses mapping
-        there while tracking has work, and ends the window early, returning False, when a newer
-        frame waits to be mapped).
+        ``between_iterations`` is called before each mapping step; returning False ends the window
+        there (the live pipeline: a newer frame waits to be tracked, or to be mapped).
         """
         if tracked.failed:
             return MapOutcome(None, None, False, 0, 0.0)
