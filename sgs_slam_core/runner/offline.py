@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.profiler import record_function
 
 from sgs_slam_core.config import dump_yaml
 from sgs_slam_core.config.schema import SlamConfig
@@ -30,6 +29,7 @@ from sgs_slam_core.errors import DatasetError, EvaluationError, FrameError, Outp
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.mapio import save_map, write_splat_ply
 from sgs_slam_core.metrics import write_tum_trajectory
+from sgs_slam_core.profiling import stage
 from sgs_slam_core.render.api import resolve_backend
 from sgs_slam_core.runner.evaluation import EvalOptions, evaluate
 from sgs_slam_core.runner.outputs import RESULT_FILES, prepare_run_dir, remove_run, write_csv
@@ -121,7 +121,7 @@ def _process_all(slam: Slam, dataset: Dataset, observers: list[Viewer], should_s
             break
         t0 = time.perf_counter()
         try:
-            with record_function("data_loading"):
+            with stage("data_loading"):
                 frame = dataset[i]
             loop.load_s += time.perf_counter() - t0
             step = slam.process(frame)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -29,6 +29,7 @@ class FrameTensors:
     labels: Tensor | None  # [H, W] int64
     semantic: Tensor | None  # [H, W, S] float32 target of the semantic channels
     ignore: Tensor | None = None  # [H, W] bool, pixels left out of every loss and of densification (edit locks)
+    _valid: tuple[Tensor, Tensor | None, Tensor] | None = field(default=None, init=False, repr=False, compare=False)
 
     @staticmethod
     def from_arrays(
@@ -60,8 +61,15 @@ class FrameTensors:
 
     @property
     def valid(self) -> Tensor:  # [H, W] bool
-        """Pixels with a depth measurement that are not ignored."""
-        return self.depth > 0 if self.ignore is None else (self.depth > 0) & ~self.ignore
+        """Pixels with a depth measurement that are not ignored.
+
+        Kept for the ``depth`` and ``ignore`` it was made from (a mapping window asks ~100 times a frame).
+        """
+        cached = self._valid
+        if cached is None or cached[0] is not self.depth or cached[1] is not self.ignore:
+            mask = self.depth > 0 if self.ignore is None else (self.depth > 0) & ~self.ignore
+            self._valid = cached = (self.depth, self.ignore, mask)
+        return cached[2]
 
 
 @dataclass

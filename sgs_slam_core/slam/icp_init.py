@@ -7,10 +7,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from torch import Tensor
-from torch.profiler import record_function
 
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.icp import IcpLevel, IcpSettings, align_depth, icp_pyramid
+from sgs_slam_core.profiling import stage
 
 __all__ = ["IcpInit", "IcpOutcome"]
 
@@ -58,7 +58,7 @@ class IcpInit:
         if ref is None or ref.intrinsics != intrinsics:
             return predicted_c2w, None
         init = torch.as_tensor(np.linalg.inv(ref.c2w) @ predicted_c2w, dtype=torch.float64, device=depth.device)
-        with record_function("icp"):
+        with stage("icp"):
             if ref.levels is None:
                 ref.levels = icp_pyramid(ref.depth, ref.intrinsics, len(self.settings.steps_for(intrinsics.width)))
             result = align_depth(depth, intrinsics, ref.levels, init, self.settings)

@@ -8,9 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from torch.profiler import record_function
 
 from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.profiling import stage
 from sgs_slam_core.render.api import render
 from sgs_slam_core.render.settings import RenderSettings
 from sgs_slam_core.slam.frame_data import FrameTensors
@@ -84,16 +84,16 @@ def map_window(
             break
         wf = window[-1] if it < s.current_frame_steps else window[int(rng.integers(len(window)))]
         semantic = use_semantics and wf.data.semantic is not None
-        with record_function("map.render"):
+        with stage("map.render"):
             out = render(opt.gaussians(), wf.data.intrinsics, wf.w2c, render_settings, with_semantics=semantic)
-        with record_function("map.loss"):
+        with stage("map.loss"):
             loss = mapping_loss(out, wf.data, s, semantic, wf.weight)
-        with record_function("map.backward"):
+        with stage("map.backward"):
             loss.backward()
-        with record_function("map.step"):
+        with stage("map.step"):
             opt.step()
         if it in prune_at:
-            with record_function("map.prune"):
+            with stage("map.prune"):
                 pruned += opt.prune(prune_mask(opt.gaussians(), s.prune_opacity, s.prune_scale_ratio * scene_radius))
         done = it + 1
     last = float(loss.detach()) if done else last  # one host sync per window, not per iteration

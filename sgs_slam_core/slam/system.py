@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from torch.profiler import record_function
 
 from sgs_slam_core import native
 from sgs_slam_core.config.loader import config_to_dict
@@ -22,6 +21,7 @@ from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.se3 import se3_inverse
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.mapio.native import MapFile
+from sgs_slam_core.profiling import stage
 from sgs_slam_core.render import cpu_backend
 from sgs_slam_core.render.api import RenderOutput, render
 from sgs_slam_core.semantics import SemanticCodec
@@ -257,7 +257,7 @@ class Slam:
         data.index = index
         use_sem = frame.labels is not None
         timings: dict[str, float] = {}
-        with record_function("densify"):
+        with stage("densify"):
             added = self._densify(data, frame, c2w, index)
         timings["densify"] = time.perf_counter() - t0
         mapping, window = None, None
@@ -266,7 +266,7 @@ class Slam:
         if (last is None or index // every > last // every) and self.config.mapping.iterations > 0:
             self._last_mapped = index
             t_sel = time.perf_counter()
-            with record_function("keyframe_selection"):
+            with stage("keyframe_selection"):
                 window = self._select_window(data, c2w, frame.labels, index)
             timings["keyframe_selection"] = time.perf_counter() - t_sel
             result = self._map(data, c2w, window, use_sem, between_iterations)
@@ -372,7 +372,7 @@ class Slam:
             raise FrameError(f"time stamp went backwards: {frame.stamp_ns} < {self.trajectory[-1][1]} ns")
 
     def _frame_tensors(self, frame: Frame) -> FrameTensors:
-        with record_function("upload"):
+        with stage("upload"):
             data = FrameTensors.from_frame(frame, self.codec, self.device)
             data.ignore = self.edits.ignore_mask(data.labels)
         return data
@@ -463,7 +463,7 @@ class Slam:
         for store_index, weight in zip(window.keyframes, window.weights[:-1], strict=True):
             kf = self.keyframes[store_index]
             w2c = torch.as_tensor(kf.w2c, dtype=torch.float32, device=self.device)
-            with record_function("upload"):
+            with stage("upload"):
                 kf_data = kf.to_tensors(self.codec, self.device)
                 kf_data.ignore = self.edits.ignore_mask(kf_data.labels)
             frames.append(WindowFrame(kf_data, w2c, weight))

@@ -9,9 +9,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from torch import Tensor
-from torch.profiler import record_function
 
 from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.profiling import stage
 from sgs_slam_core.render.api import render
 from sgs_slam_core.render.settings import RenderSettings
 from sgs_slam_core.slam.adam import FusedAdam
@@ -64,9 +64,9 @@ def track(
     best = _Best.start(device)
     converged, it = False, 0
     for it in range(1, s.iterations + 1):
-        with record_function("track.render"):
+        with stage("track.render"):
             out = render(fixed, frame.intrinsics, pose.w2c(), render_settings, with_semantics=use_semantics)
-        with record_function("track.loss"):
+        with stage("track.loss"):
             loss = tracking_loss(out, frame, s, use_semantics)
             best.update(loss, pose.xi(), s.stop_rel_improvement)
         if it % check_every == 0 or it == s.iterations:
@@ -78,9 +78,9 @@ def track(
                 break
             if it >= s.min_iterations and newer_frame_waiting is not None and newer_frame_waiting():
                 break
-        with record_function("track.backward"):
+        with stage("track.backward"):
             loss.total.backward()
-        with record_function("track.step"):
+        with stage("track.step"):
             adam.step()
     value, pixels, residual = (float(v) for v in torch.stack([best.loss, best.pixels.float(), best.residual]).tolist())
     if pixels == 0:  # no pixel was ever explained: keep the initial pose

@@ -90,6 +90,23 @@ def test_one_gaussian_covering_the_image_and_empty_tiles():
     assert all((g_got[n] - g_ref[n]).abs().max() <= 1e-10 * (g_ref[n].abs().max() + 1e-30) for n in g_ref)
 
 
+def test_extreme_parameters_match_the_reference_in_float32():
+    """The float kernels' polynomial exp and log (and their clamps) on saturated opacities and scales."""
+    gm, k = random_scene(500, 64, 48, seed=6)
+    logit = gm.logit_opacities.clone()
+    logit[:40], logit[40:80], logit[80:100] = -120.0, 120.0, -5.5  # sigmoid 0, 1, just below alpha_min
+    log_scales = gm.log_scales.clone()
+    log_scales[100:120], log_scales[120:125] = -30.0, 0.3  # far below a pixel, a metre across
+    gm = gm.with_tensors(logit_opacities=logit, log_scales=log_scales)
+    ref, g_ref = forward_backward(gm, k, "torch")
+    got, g_got = forward_backward(gm, k, "cpu")
+    for name in ("color", "depth", "silhouette", "semantic"):
+        assert (getattr(got, name) - getattr(ref, name)).abs().max().item() < 2e-5, name
+    for name, grad in g_ref.items():
+        assert torch.isfinite(g_got[name]).all(), name
+        assert (g_got[name] - grad).abs().max().item() <= 2e-4 * grad.abs().max().item(), name
+
+
 def test_finite_differences_on_the_compiled_path():
     gm, k = random_scene(60, 24, 18, seed=3, dtype=torch.float64)
     settings = RenderSettings(backend="cpu")

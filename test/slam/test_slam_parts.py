@@ -136,6 +136,17 @@ def test_compact_frames_round_trip_depth_to_a_fifth_of_a_millimetre():
     assert isinstance(t, FrameTensors) and t.semantic.shape == (48, 64, 3)
 
 
+def test_the_valid_mask_follows_depth_and_ignore():
+    depth = torch.tensor([[0.0, 1.0], [2.0, 3.0]])
+    t = FrameTensors(0, K, torch.zeros(2, 2, 3), depth, None, None)
+    assert t.valid.tolist() == [[False, True], [True, True]]
+    assert t.valid is t.valid  # kept between asks
+    t.ignore = torch.tensor([[False, False], [True, False]])  # an edit lock set after construction
+    assert t.valid.tolist() == [[False, True], [False, True]]
+    t.depth = torch.zeros(2, 2)
+    assert not t.valid.any()
+
+
 def test_the_first_mapping_steps_render_the_newest_window_frame(monkeypatch):
     from sgs_slam_core.slam import mapper
 

@@ -1,5 +1,5 @@
 // The SLAM's image losses on the CPU, each value and gradient in one call: the photometric term of the
-// mapping loss (below) and tracking's masked L1 sums (tracking_l1, at the end).
+// mapping loss (below), the whole mapping loss (mapping_loss) and tracking's masked L1 sums (tracking_l1).
 //
 //   L = (1 - w) mean|x - y| + w (1 - mean SSIM(x, y))
 //
@@ -299,6 +299,80 @@ L1Sums tracking_l1_sums(const L1Inputs<T>& in, T thr, T wd, T wc, T ws, T* gc, T
   return total;
 }
 
+// (1 - w) mean|x - y| + w (1 - mean SSIM) of im, and (grad != nullptr) its gradient times grad_scale
+// written to grad [H, W, C]. `options` makes the derivative maps' scratch tensor.
+template <typename T>
+double photometric_value(const Images<T>& im, double ssim_weight, int64_t window, double sigma, T* grad,
+                         double grad_scale, const torch::TensorOptions& options, int threads) {
+  const int64_t h = im.h, w = im.w, c = im.c, n = h * w * c;
+  if (n == 0) return 0.0;
+  const auto taps = gaussian_taps<T>(static_cast<int>(window), sigma);
+  std::vector<double> row_s(h, 0.0), row_l1(h, 0.0);
+  const bool ssim = ssim_weight > 0, need_grad = grad != nullptr;
+  torch::Tensor maps = (ssim && need_grad) ? torch::empty({3, h, w, c}, options) : torch::Tensor();
+  T* d = maps.defined() ? maps.data_ptr<T>() : nullptr;
+  if (ssim) {
+    ssim_pass<T>(im, taps, need_grad, row_s, row_l1, d, d ? d + n : nullptr, d ? d + 2 * n : nullptr, threads);
+  } else {
+    for (int64_t r = 0; r < h; ++r) {
+      double acc = 0.0;
+      for (int64_t j = 0; j < w * c; ++j) acc += std::abs(im.x[r * w * c + j] - im.y[r * w * c + j]);
+      row_l1[r] = acc;
+    }
+  }
+  double sum_s = 0.0, sum_l1 = 0.0;
+  for (int64_t r = 0; r < h; ++r) {
+    sum_s += row_s[r];
+    sum_l1 += row_l1[r];
+  }
+  if (need_grad) {
+    const T scale_l1 = static_cast<T>((1.0 - ssim_weight) / n);
+    if (ssim) {
+      gradient_pass<T>(im, taps, d, d + n, d + 2 * n, static_cast<T>(-ssim_weight / n), scale_l1, grad, threads);
+    } else {
+      for (int64_t j = 0; j < n; ++j) {
+        const T diff = im.x[j] - im.y[j];
+        grad[j] = scale_l1 * static_cast<T>((diff > 0) - (diff < 0));
+      }
+    }
+    if (grad_scale != 1.0) {  // after the pass, as a separate product (the rounding of the two-step form)
+      const T g = static_cast<T>(grad_scale);
+      for (int64_t j = 0; j < n; ++j) grad[j] *= g;
+    }
+  }
+  return (1.0 - ssim_weight) * (sum_l1 / n) + (ssim ? ssim_weight * (1.0 - sum_s / n) : 0.0);
+}
+
+// Mapping's depth term: sum|D - D_gt| and the pixel count over valid & isfinite(D) (sums in double per
+// row, then in row order), and the gradient sign(D - D_gt) * grad_scale / max(count, 1) there, 0 elsewhere.
+template <typename T>
+std::pair<double, int64_t> depth_l1(const T* depth, const T* target, const bool* valid, int64_t h, int64_t w,
+                                    double grad_scale, T* grad, int threads) {
+  std::vector<double> row_sum(h, 0.0);
+  std::vector<int64_t> row_count(h, 0);
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (int64_t y = 0; y < h; ++y) {
+    double acc = 0.0;
+    int64_t count = 0;
+    for (int64_t i = y * w; i < (y + 1) * w; ++i) {
+      const bool ok = valid[i] && std::isfinite(depth[i]);
+      const T diff = ok ? depth[i] - target[i] : T(0);
+      acc += std::abs(diff);
+      count += ok;
+      grad[i] = static_cast<T>((diff > 0) - (diff < 0));  // scaled below, once the count is known
+    }
+    row_sum[y] = acc;
+    row_count[y] = count;
+  }
+  double sum = 0.0;
+  int64_t count = 0;
+  for (int64_t y = 0; y < h; ++y) sum += row_sum[y], count += row_count[y];
+  // (1 / count) * scale in the working precision: the rounding of the tensor form it replaced
+  const T scale = T(1) / static_cast<T>(std::max<int64_t>(count, 1)) * static_cast<T>(grad_scale);
+  for (int64_t i = 0; i < h * w; ++i) grad[i] *= scale;
+  return {sum, count};
+}
+
 }  // namespace
 
 // (loss [], gradient [H, W, C] or an empty tensor) of (1 - w) mean|x - y| + w (1 - mean SSIM).
@@ -309,50 +383,58 @@ std::vector<torch::Tensor> photometric_loss(torch::Tensor pred, torch::Tensor ta
   TORCH_CHECK(window >= 1 && window % 2 == 1 && window <= 63, "window must be odd, 1..63");
   pred = pred.contiguous();
   target = target.contiguous();
-  const int64_t h = pred.size(0), w = pred.size(1), c = pred.size(2), n = pred.numel();
   auto loss = torch::zeros({}, pred.options());
   torch::Tensor grad = need_grad ? torch::empty_like(pred) : torch::empty({0}, pred.options());
-  if (n == 0) return {loss, grad};
   AT_DISPATCH_FLOATING_TYPES(pred.scalar_type(), "photometric_loss", [&] {
     using T = scalar_t;
-    const Images<T> im{pred.data_ptr<T>(), target.data_ptr<T>(), h, w, c};
-    const auto taps = gaussian_taps<T>(static_cast<int>(window), sigma);
-    std::vector<double> row_s(h, 0.0), row_l1(h, 0.0);
-    const bool ssim = ssim_weight > 0;
-    torch::Tensor maps = (ssim && need_grad) ? torch::empty({3, h, w, c}, pred.options()) : torch::Tensor();
-    T* d = maps.defined() ? maps.data_ptr<T>() : nullptr;
-    if (ssim) {
-      ssim_pass<T>(im, taps, need_grad, row_s, row_l1, d, d ? d + n : nullptr, d ? d + 2 * n : nullptr,
-                   static_cast<int>(threads));
-    } else {
-      for (int64_t r = 0; r < h; ++r) {
-        double s = 0.0;
-        for (int64_t j = 0; j < w * c; ++j) s += std::abs(im.x[r * w * c + j] - im.y[r * w * c + j]);
-        row_l1[r] = s;
-      }
-    }
-    double sum_s = 0.0, sum_l1 = 0.0;
-    for (int64_t r = 0; r < h; ++r) {
-      sum_s += row_s[r];
-      sum_l1 += row_l1[r];
-    }
-    const double mean_s = sum_s / n, mean_l1 = sum_l1 / n;
-    loss.fill_((1.0 - ssim_weight) * mean_l1 + (ssim ? ssim_weight * (1.0 - mean_s) : 0.0));
-    if (need_grad) {
-      const T scale_l1 = static_cast<T>((1.0 - ssim_weight) / n);
-      if (ssim) {
-        gradient_pass<T>(im, taps, d, d + n, d + 2 * n, static_cast<T>(-ssim_weight / n), scale_l1,
-                         grad.data_ptr<T>(), static_cast<int>(threads));
-      } else {
-        T* g = grad.data_ptr<T>();
-        for (int64_t j = 0; j < n; ++j) {
-          const T diff = im.x[j] - im.y[j];
-          g[j] = scale_l1 * static_cast<T>((diff > 0) - (diff < 0));
-        }
-      }
-    }
+    const Images<T> im{pred.data_ptr<T>(), target.data_ptr<T>(), pred.size(0), pred.size(1), pred.size(2)};
+    loss.fill_(photometric_value<T>(im, ssim_weight, window, sigma, need_grad ? grad.data_ptr<T>() : nullptr, 1.0,
+                                    pred.options(), static_cast<int>(threads)));
   });
   return {loss, grad};
+}
+
+// The whole mapping loss of slam/losses.py's mapping_loss_reference, times `scale`, and its gradients:
+//   scale (w_d mean|D - D_gt| over valid & isfinite(D) + w_c photometric(C) + w_s photometric(S)).
+// S = 0 channels leaves the semantic term out; need_grad = false skips the colour and semantic
+// gradients (empty tensors). Returns (loss [], d colour [H, W, 3], d semantics [H, W, S], d depth [H, W]).
+std::vector<torch::Tensor> mapping_loss(torch::Tensor color, torch::Tensor semantic, torch::Tensor depth,
+                                        torch::Tensor valid, torch::Tensor rgb, torch::Tensor sem_target,
+                                        torch::Tensor depth_target, double w_depth, double w_color, double w_semantic,
+                                        double ssim_weight, double scale, bool need_grad, int64_t window,
+                                        double sigma, int64_t threads) {
+  const int64_t h = depth.size(0), w = depth.size(1), ns = semantic.size(2);
+  TORCH_CHECK(depth.dim() == 2 && color.dim() == 3 && color.sizes() == rgb.sizes() && color.size(0) == h &&
+                  color.size(1) == w && color.size(2) == 3 && semantic.sizes() == sem_target.sizes() &&
+                  semantic.size(0) == h && semantic.size(1) == w && depth_target.sizes() == depth.sizes() &&
+                  valid.sizes() == depth.sizes() && valid.scalar_type() == torch::kBool,
+              "mapping_loss: inconsistent shapes");
+  TORCH_CHECK(window >= 1 && window % 2 == 1 && window <= 63, "window must be odd, 1..63");
+  for (auto* t : {&color, &semantic, &depth, &rgb, &sem_target, &depth_target, &valid}) *t = t->contiguous();
+  auto empty = torch::empty({0}, color.options());
+  auto g_color = need_grad ? torch::empty_like(color) : empty;
+  auto g_sem = need_grad && ns > 0 ? torch::empty_like(semantic) : empty;
+  auto g_depth = torch::empty_like(depth);
+  auto loss = torch::empty({}, depth.options());
+  AT_DISPATCH_FLOATING_TYPES(depth.scalar_type(), "mapping_loss", [&] {
+    using T = scalar_t;
+    const int th = static_cast<int>(threads);
+    const auto [sum, count] = depth_l1<T>(depth.data_ptr<T>(), depth_target.data_ptr<T>(), valid.data_ptr<bool>(), h, w,
+                                          scale * w_depth, g_depth.data_ptr<T>(), th);
+    double total = w_depth * sum / static_cast<double>(std::max<int64_t>(count, 1));
+    const Images<T> im_c{color.data_ptr<T>(), rgb.data_ptr<T>(), h, w, 3};
+    total += w_color * photometric_value<T>(im_c, ssim_weight, window, sigma,
+                                            need_grad ? g_color.data_ptr<T>() : nullptr, scale * w_color,
+                                            color.options(), th);
+    if (ns > 0) {
+      const Images<T> im_s{semantic.data_ptr<T>(), sem_target.data_ptr<T>(), h, w, ns};
+      total += w_semantic * photometric_value<T>(im_s, ssim_weight, window, sigma,
+                                                 need_grad ? g_sem.data_ptr<T>() : nullptr, scale * w_semantic,
+                                                 semantic.options(), th);
+    }
+    loss.fill_(scale * total);
+  });
+  return {loss, g_color, g_sem, g_depth};
 }
 
 // Tracking's masked L1 sums and their gradients (slam/losses.py's tracking_loss_reference):
@@ -395,6 +477,8 @@ std::vector<torch::Tensor> tracking_l1(torch::Tensor color, torch::Tensor semant
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("photometric_loss", &photometric_loss, py::call_guard<py::gil_scoped_release>(),
         "(1 - w) L1 + w (1 - SSIM) of [H, W, C] images and its gradient");
+  m.def("mapping_loss", &mapping_loss, py::call_guard<py::gil_scoped_release>(),
+        "the mapping loss (depth L1, colour and semantic L1/SSIM) and its gradients");
   m.def("tracking_l1", &tracking_l1, py::call_guard<py::gil_scoped_release>(),
         "tracking's masked L1 sums and their gradients");
 }

@@ -1,0 +1,19 @@
+"""Profiler labels that cost nothing while no profiler runs."""
+
+from __future__ import annotations
+
+from contextlib import AbstractContextManager, nullcontext
+
+import torch
+from torch.profiler import record_function
+
+__all__ = ["stage"]
+
+
+def stage(label: str) -> AbstractContextManager[object]:
+    """``torch.profiler.record_function(label)`` while a profiler runs, else a no-op.
+
+    record_function costs ~6 us even with no profiler (measured on 2 cores); the SLAM's loops enter
+    ~500 labels a frame.
+    """
+    return record_function(label) if torch._C._autograd._profiler_enabled() else nullcontext()
