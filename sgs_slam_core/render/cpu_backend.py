@@ -7,6 +7,7 @@ Importing this module builds nothing.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -20,11 +21,14 @@ from sgs_slam_core.render.settings import RenderSettings
 
 __all__ = [
     "EXTENSION",
+    "WorldRenderState",
     "composite_cpu",
     "extension",
     "is_available",
     "render_world_isotropic_cpu",
     "unavailable_reason",
+    "world_isotropic_backward",
+    "world_isotropic_forward",
 ]
 
 EXTENSION = NativeExtension("render", Path(__file__).with_name("cpu") / "raster.cpp", "the CPU renderer")
@@ -116,6 +120,71 @@ def composite_cpu(
     return tuple(out)
 
 
+@dataclass
+class WorldRenderState:
+    """What the backward of a compiled isotropic render needs (kernels' inputs and intermediates)."""
+
+    tensors: tuple[Tensor, ...]  # means, pose, camera-frame means, scales, opacities, 2D records, tile lists, ...
+    groups: list[int]  # channel groups: colour 3, semantics S, depth 1
+    args: tuple[Any, ...]  # the compositor's size, tile, cuts and thread count
+    cam: tuple[float, float, float, float, int, int]  # fx, fy, cx, cy, width, height
+    settings: RenderSettings
+
+
+def world_isotropic_forward(
+    means: Tensor,  # [N, 3] world frame
+    log_scales: Tensor,  # [N, 1]
+    logit_opacities: Tensor,  # [N]
+    colors: Tensor,  # [N, 3]
+    semantics: Tensor,  # [N, S] (S = 0 renders no semantics)
+    w2c: Tensor,  # [4, 4]
+    k: Intrinsics,
+    s: RenderSettings,
+) -> tuple[tuple[Tensor, Tensor, Tensor, Tensor], WorldRenderState]:
+    """(colour [H, W, 3], semantic [H, W, S], depth [H, W, 1], silhouette [H, W]) and the backward's state.
+
+    No autograd: :class:`_CppWorldIsotropicRender` wraps this, and the direct mapping step
+    (``slam/direct_step.py``) calls it with :func:`world_isotropic_backward` itself.
+    """
+    ext, threads = extension(), torch.get_num_threads()
+    m, ls, lo, col, sem, pose = (t.detach() for t in (means, log_scales, logit_opacities, colors, semantics, w2c))
+    cam = (k.fx, k.fy, k.cx, k.cy, k.width, k.height)
+    mc, sc, op, feats, m2d, con, rad = ext.prepare_world_isotropic(
+        m, ls, lo, col, sem, pose, *cam, s.near_plane, s.eps2d, s.alpha_min, s.extent_sigma, threads
+    )
+    tile = s.cpu_tile(ext.max_tile(m.dtype == torch.float64))
+    gids, offsets = ext.bin_gaussians(m2d, rad, feats[:, -1], k.width, k.height, tile, threads)
+    args = (k.width, k.height, tile, s.alpha_min, s.alpha_max, s.extent_sigma**2, s.min_transmittance, threads)
+    groups = [3, sem.shape[1], 1]
+    color, semantic, depth, sil, t_final, count = ext.composite_forward(
+        m2d, con, op, rad, feats, gids, offsets, groups, *args
+    )
+    state = WorldRenderState((m, pose, mc, sc, op, m2d, con, rad, feats, gids, offsets, t_final, count), groups, args,
+                             cam, s)  # fmt: skip
+    return (color, semantic, depth, sil), state
+
+
+def world_isotropic_backward(
+    state: WorldRenderState,
+    grad_out: tuple[Tensor | None, ...],  # gradients of (colour, semantic, depth, silhouette); None = 0
+    need_params: bool,
+    need_pose: bool,
+) -> tuple[Tensor | None, ...]:  # d means, d log_scales [N, 1], d logit_opacities, d colors, d semantics, d w2c
+    """Gradients of :func:`world_isotropic_forward`'s inputs (None where not needed)."""
+    m, pose, mc, sc, op, m2d, con, rad, feats, gids, offsets, t_final, count = state.tensors
+    ext, s = extension(), state.settings
+    rows = ext.composite_backward(m2d, con, op, rad, feats, gids, offsets, t_final, count, state.groups,
+                                  *_grads(grad_out), *state.args)  # fmt: skip
+    g_m, g_ls, g_lo, g_col, g_sem, g_pose = ext.world_isotropic_backward(
+        m, pose, mc, sc, op, rows, state.groups[1], need_params, need_pose, *state.cam, s.near_plane, s.eps2d,
+        torch.get_num_threads(),
+    )  # fmt: skip
+    pose_grad = g_pose if need_pose else None
+    if not need_params:  # tracking: the map is fixed, only the pose gets a gradient
+        return None, None, None, None, None, pose_grad
+    return g_m, g_ls[:, None], g_lo, g_col, g_sem, pose_grad
+
+
 class _CppWorldIsotropicRender(torch.autograd.Function):
     """The map's isotropic parameters and the pose in, images out, all in C++.
 
@@ -135,36 +204,16 @@ class _CppWorldIsotropicRender(torch.autograd.Function):
         k: Intrinsics,
         s: RenderSettings,
     ) -> tuple[Tensor, ...]:
-        ext, threads = extension(), torch.get_num_threads()
-        m, ls, lo, col, sem, pose = (t.detach() for t in (means, log_scales, logit_opacities, colors, semantics, w2c))
-        cam = (k.fx, k.fy, k.cx, k.cy, k.width, k.height)
-        mc, sc, op, feats, m2d, con, rad = ext.prepare_world_isotropic(
-            m, ls, lo, col, sem, pose, *cam, s.near_plane, s.eps2d, s.alpha_min, s.extent_sigma, threads
-        )
-        tile = s.cpu_tile(ext.max_tile(m.dtype == torch.float64))
-        gids, offsets = ext.bin_gaussians(m2d, rad, feats[:, -1], k.width, k.height, tile, threads)
-        args = (k.width, k.height, tile, s.alpha_min, s.alpha_max, s.extent_sigma**2, s.min_transmittance,
-                threads)  # fmt: skip
-        ctx.groups = [3, sem.shape[1], 1]
-        *images, sil, t_final, count = ext.composite_forward(m2d, con, op, rad, feats, gids, offsets, ctx.groups, *args)
-        ctx.save_for_backward(m, pose, mc, sc, op, m2d, con, rad, feats, gids, offsets, t_final, count)
-        ctx.args, ctx.cam, ctx.s = args, cam, s
-        return (*images, sil)
+        images, state = world_isotropic_forward(means, log_scales, logit_opacities, colors, semantics, w2c, k, s)
+        ctx.save_for_backward(*state.tensors)  # (autograd checks that nothing changed them in place)
+        ctx.state = replace(state, tensors=())
+        return images
 
     @staticmethod
     def backward(ctx: Any, *grad_out: Tensor | None) -> tuple[Tensor | None, ...]:  # type: ignore[override]
-        m, pose, mc, sc, op, m2d, con, rad, feats, gids, offsets, t_final, count = ctx.saved_tensors
-        ext, s = extension(), ctx.s
-        rows = ext.composite_backward(m2d, con, op, rad, feats, gids, offsets, t_final, count, ctx.groups,
-                                      *_grads(grad_out), *ctx.args)  # fmt: skip
         need_params, need_pose = any(ctx.needs_input_grad[:5]), ctx.needs_input_grad[5]
-        g_m, g_ls, g_lo, g_col, g_sem, g_pose = ext.world_isotropic_backward(
-            m, pose, mc, sc, op, rows, ctx.groups[1], need_params, need_pose, *ctx.cam, s.near_plane, s.eps2d,
-            torch.get_num_threads(),
-        )  # fmt: skip
-        if not need_params:  # tracking: the map is fixed, only the pose gets a gradient
-            return None, None, None, None, None, g_pose if need_pose else None, None, None
-        return g_m, g_ls[:, None], g_lo, g_col, g_sem, g_pose if need_pose else None, None, None
+        state = replace(ctx.state, tensors=ctx.saved_tensors)
+        return (*world_isotropic_backward(state, grad_out, need_params, need_pose), None, None)
 
 
 def render_world_isotropic_cpu(

@@ -18,7 +18,7 @@ from torch import Tensor
 
 from sgs_slam_core.slam.photometric import EXTENSION, SIGMA, WINDOW
 
-__all__ = ["fused_available", "fused_mapping_loss", "fused_tracking_loss"]
+__all__ = ["fused_available", "fused_mapping_loss", "fused_tracking_loss", "mapping_loss_grads"]
 
 
 class _Scaled(torch.autograd.Function):
@@ -66,6 +66,37 @@ def fused_tracking_loss(
     return _Scaled.apply(total, grads, color, semantic if semantic.shape[2] else None, depth), pixels, depth_sum
 
 
+def mapping_loss_grads(
+    color: Tensor,  # [H, W, 3] rendered
+    semantic: Tensor | None,  # [H, W, S] rendered, None = no semantic term
+    depth: Tensor,  # [H, W] rendered
+    valid: Tensor,  # [H, W] bool, measured depth (and not ignored)
+    rgb: Tensor,  # [H, W, 3] measured (ignored pixels already replaced by the render)
+    sem_target: Tensor | None,  # [H, W, S] measured, likewise
+    depth_target: Tensor,  # [H, W] measured (m)
+    weights: tuple[float, float, float],  # depth, colour, semantic
+    ssim_weight: float,
+    scale: float,
+    need_grad: bool,
+) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:  # loss [], d colour, d semantic (None: no term), d depth
+    """``scale`` x (w_d mean|D - D_gt| + w_c photometric(C) + w_s photometric(S)) and its gradients, no autograd.
+
+    One C++ call (``mapping_loss`` in ``slam/cpu/photometric.cpp``, CPU only) computes the value and
+    every gradient: the depth mean's ~10 tensor ops cost ~0.2 ms a mapping step on their own.
+    ``need_grad`` False skips the colour and semantic gradients (None).
+    """
+    h, w = depth.shape
+    if semantic is None or sem_target is None:
+        semantic = sem_target = None
+    empty = color.new_zeros(h, w, 0)
+    total, g_color, g_sem, g_depth = EXTENSION.module().mapping_loss(
+        color.detach(), empty if semantic is None else semantic.detach(), depth.detach(), valid, rgb,
+        empty if sem_target is None else sem_target, depth_target, *(float(x) for x in weights), float(ssim_weight),
+        float(scale), need_grad, WINDOW, SIGMA, torch.get_num_threads(),
+    )  # fmt: skip
+    return total, g_color if need_grad else None, g_sem if need_grad and semantic is not None else None, g_depth
+
+
 def fused_mapping_loss(
     color: Tensor,  # [H, W, 3] rendered
     semantic: Tensor | None,  # [H, W, S] rendered, None = no semantic term
@@ -78,21 +109,13 @@ def fused_mapping_loss(
     ssim_weight: float,
     scale: float = 1.0,
 ) -> Tensor:  # [] differentiable
-    """``scale`` x (w_d mean|D - D_gt| + w_c photometric(C) + w_s photometric(S)), as ``losses.mapping_loss``.
-
-    One C++ call (``mapping_loss`` in ``slam/cpu/photometric.cpp``, CPU only) computes the value and
-    every gradient: the depth mean's ~10 tensor ops cost ~0.2 ms a mapping step on their own.
-    """
-    h, w = depth.shape
+    """:func:`mapping_loss_grads` as one autograd node, as ``losses.mapping_loss``."""
     if semantic is None or sem_target is None:
         semantic = sem_target = None
     need_grad = color.requires_grad or (semantic is not None and semantic.requires_grad)
-    empty = color.new_zeros(h, w, 0)
-    total, g_color, g_sem, g_depth = EXTENSION.module().mapping_loss(
-        color.detach(), empty if semantic is None else semantic.detach(), depth.detach(), valid, rgb,
-        empty if sem_target is None else sem_target, depth_target, *(float(x) for x in weights), float(ssim_weight),
-        float(scale), need_grad, WINDOW, SIGMA, torch.get_num_threads(),
-    )  # fmt: skip
+    total, g_color, g_sem, g_depth = mapping_loss_grads(
+        color, semantic, depth, valid, rgb, sem_target, depth_target, weights, ssim_weight, scale, need_grad
+    )
     sem_grad = g_sem if semantic is not None and semantic.requires_grad else None
     grads = (g_color if color.requires_grad else None, sem_grad, g_depth)
     return _Scaled.apply(total, grads, color, semantic, depth)

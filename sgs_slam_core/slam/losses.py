@@ -9,13 +9,19 @@ from torch import Tensor
 
 from sgs_slam_core.render.api import RenderOutput
 from sgs_slam_core.slam.frame_data import FrameTensors
-from sgs_slam_core.slam.fused_losses import fused_available, fused_mapping_loss, fused_tracking_loss
+from sgs_slam_core.slam.fused_losses import (
+    fused_available,
+    fused_mapping_loss,
+    fused_tracking_loss,
+    mapping_loss_grads,
+)
 from sgs_slam_core.slam.photometric import photometric_loss
 from sgs_slam_core.slam.settings import MappingSettings, TrackingSettings
 
 __all__ = [
     "TrackingLoss",
     "mapping_loss",
+    "mapping_loss_and_grads",
     "mapping_loss_reference",
     "tracking_loss",
     "tracking_loss_reference",
@@ -81,16 +87,35 @@ def mapping_loss(
     """``scale`` x :func:`mapping_loss_reference`; one autograd node on the CPU (``fused_losses``)."""
     if not fused_available(out.color.device):
         return scale * mapping_loss_reference(out, frame, s, use_semantics)
-    semantic = _semantic_term(use_semantics, frame, s.weight_semantic)
-    rgb, sem_target = frame.rgb, frame.semantic if semantic else None
-    if frame.ignore is not None:  # ignored pixels match the render: no error, no gradient (as photometric_loss)
-        rgb = torch.where(frame.ignore[..., None], out.color.detach(), rgb)
-        if sem_target is not None:
-            sem_target = torch.where(frame.ignore[..., None], out.semantic.detach(), sem_target)
+    semantic, rgb, sem_target = _mapping_targets(out, frame, s, use_semantics)
     return fused_mapping_loss(
         out.color, out.semantic if semantic else None, out.depth, frame.valid, rgb, sem_target, frame.depth,
         (s.weight_depth, s.weight_color, s.weight_semantic), s.ssim_weight, scale,
     )  # fmt: skip
+
+
+def mapping_loss_and_grads(
+    out: RenderOutput, frame: FrameTensors, s: MappingSettings, use_semantics: bool, scale: float = 1.0
+) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:  # loss [], d colour, d semantic (None: no term), d depth
+    """:func:`mapping_loss`'s value and its gradients with respect to the render, without autograd (CPU only)."""
+    semantic, rgb, sem_target = _mapping_targets(out, frame, s, use_semantics)
+    return mapping_loss_grads(
+        out.color, out.semantic if semantic else None, out.depth, frame.valid, rgb, sem_target, frame.depth,
+        (s.weight_depth, s.weight_color, s.weight_semantic), s.ssim_weight, scale, True,
+    )  # fmt: skip
+
+
+def _mapping_targets(
+    out: RenderOutput, frame: FrameTensors, s: MappingSettings, use_semantics: bool
+) -> tuple[bool, Tensor, Tensor | None]:  # semantic term on, colour target [H, W, 3], semantic target [H, W, S]
+    """The fused loss's targets: ignored pixels match the render (no error, no gradient, as photometric_loss)."""
+    semantic = _semantic_term(use_semantics, frame, s.weight_semantic)
+    rgb, sem_target = frame.rgb, frame.semantic if semantic else None
+    if frame.ignore is not None:
+        rgb = torch.where(frame.ignore[..., None], out.color.detach(), rgb)
+        if sem_target is not None:
+            sem_target = torch.where(frame.ignore[..., None], out.semantic.detach(), sem_target)
+    return semantic, rgb, sem_target
 
 
 def mapping_loss_reference(out: RenderOutput, frame: FrameTensors, s: MappingSettings, use_semantics: bool) -> Tensor:

@@ -13,6 +13,7 @@ from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.render.api import render
 from sgs_slam_core.render.settings import RenderSettings
+from sgs_slam_core.slam.direct_step import direct_available, mapping_step_grads
 from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.losses import mapping_loss
 from sgs_slam_core.slam.optimizer import GaussianOptimizer
@@ -73,10 +74,12 @@ def map_window(
 
     Gaussians of ``frozen_labels`` are left exactly as they are. ``between_iterations`` is called
     before each step (live operation); when it returns False the window ends there and the map
-    keeps the steps made so far (a newer frame is waiting).
+    keeps the steps made so far (a newer frame is waiting). On the compiled CPU backend with an
+    isotropic map each step's gradients come from the kernels directly (``direct_step``), else autograd.
     """
     t0 = time.perf_counter()
     opt = GaussianOptimizer(gaussians, s, frozen_labels)
+    direct = direct_available(gaussians.isotropic, gaussians.device, render_settings)
     pruned, last, done = 0, float("nan"), 0
     prune_at = set(s.prune_iterations)
     for it in range(s.iterations):
@@ -84,12 +87,15 @@ def map_window(
             break
         wf = window[-1] if it < s.current_frame_steps else window[int(rng.integers(len(window)))]
         semantic = use_semantics and wf.data.semantic is not None
-        with stage("map.render"):
-            out = render(opt.gaussians(), wf.data.intrinsics, wf.w2c, render_settings, with_semantics=semantic)
-        with stage("map.loss"):
-            loss = mapping_loss(out, wf.data, s, semantic, wf.weight)
-        with stage("map.backward"):
-            loss.backward()
+        if direct:  # the same kernels without the autograd graph (slam/direct_step.py)
+            loss = mapping_step_grads(opt.params, wf.data, wf.w2c, s, render_settings, semantic, wf.weight)
+        else:
+            with stage("map.render"):
+                out = render(opt.gaussians(), wf.data.intrinsics, wf.w2c, render_settings, with_semantics=semantic)
+            with stage("map.loss"):
+                loss = mapping_loss(out, wf.data, s, semantic, wf.weight)
+            with stage("map.backward"):
+                loss.backward()
         with stage("map.step"):
             opt.step()
         if it in prune_at:

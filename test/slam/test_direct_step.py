@@ -1,0 +1,74 @@
+"""The direct mapping step (kernels called in order, no autograd) against the autograd path, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from sgs_slam_core.render import RenderSettings, cpu_backend, render
+from sgs_slam_core.slam import mapper
+from sgs_slam_core.slam.direct_step import direct_available, mapping_step_grads
+from sgs_slam_core.slam.frame_data import FrameTensors
+from sgs_slam_core.slam.fused_losses import fused_available
+from sgs_slam_core.slam.losses import mapping_loss
+from sgs_slam_core.slam.optimizer import GaussianOptimizer
+from sgs_slam_core.slam.settings import MappingSettings
+
+from ..render.scenes import random_scene
+
+pytestmark = pytest.mark.skipif(
+    not (cpu_backend.is_available() and fused_available(torch.device("cpu"))), reason="compiled kernels unavailable"
+)
+
+CPU = RenderSettings(backend="cpu")
+
+
+def _frame(seed: int, ignore: bool) -> tuple:
+    """A random map and a measured frame it does not quite explain (targets from a moved camera)."""
+    gm, k = random_scene(600, 64, 48, seed=seed)
+    w2c = torch.eye(4)
+    w2c[:3, 3] = torch.tensor([0.03, -0.02, 0.05])
+    with torch.no_grad():
+        target = render(gm, k, w2c, CPU)
+    g = torch.Generator().manual_seed(seed)
+    depth = target.depth.clone()
+    depth[torch.rand(depth.shape, generator=g) < 0.1] = 0  # no measurement
+    mask = torch.rand(depth.shape, generator=g) < 0.2 if ignore else None
+    data = FrameTensors(0, k, target.color, depth, None, target.semantic.softmax(-1), mask)
+    return gm, data
+
+
+@pytest.mark.parametrize("semantic", [True, False])
+@pytest.mark.parametrize("ignore", [False, True])
+def test_the_direct_gradients_are_autograds(semantic: bool, ignore: bool) -> None:
+    gm, data = _frame(3, ignore)
+    s, w2c, weight = MappingSettings(), torch.eye(4), 0.8
+    ref = GaussianOptimizer(gm, s)
+    out = render(ref.gaussians(), data.intrinsics, w2c, CPU, with_semantics=semantic)
+    loss = mapping_loss(out, data, s, semantic, weight)
+    loss.backward()
+    direct = GaussianOptimizer(gm, s)
+    value = mapping_step_grads(direct.params, data, w2c, s, CPU, semantic, weight)
+    assert torch.equal(value, loss.detach())
+    for name, p in ref.params.items():
+        assert torch.equal(direct.params[name].grad, p.grad), name
+    assert direct.params["means"].grad.abs().max() > 0
+    assert direct.params["semantics"].grad.abs().max() > 0 if semantic else not direct.params["semantics"].grad.any()
+
+
+def test_map_window_takes_the_direct_path_with_the_same_result(monkeypatch) -> None:
+    gm, data = _frame(4, False)
+    window = [mapper.WindowFrame(data, torch.eye(4), 1.0), mapper.WindowFrame(data, torch.eye(4), 0.9)]
+    s = MappingSettings(iterations=8, prune_iterations=(3,))
+    assert direct_available(gm.isotropic, gm.device, CPU)
+    calls = []
+    real = mapper.mapping_step_grads
+    monkeypatch.setattr(mapper, "mapping_step_grads", lambda *a, **kw: calls.append(1) or real(*a, **kw))
+    fast = mapper.map_window(gm, window, s, CPU, 1.0, True, np.random.default_rng(0))
+    assert len(calls) == 8
+    monkeypatch.setattr(mapper, "direct_available", lambda *a: False)
+    slow = mapper.map_window(gm, window, s, CPU, 1.0, True, np.random.default_rng(0))
+    assert len(calls) == 8 and fast.stats.pruned == slow.stats.pruned
+    for name in ("means", "log_scales", "logit_opacities", "colors", "semantics", "labels"):
+        assert torch.equal(getattr(fast.gaussians, name), getattr(slow.gaussians, name)), name
