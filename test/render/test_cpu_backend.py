@@ -107,6 +107,22 @@ def test_extreme_parameters_match_the_reference_in_float32():
         assert (g_got[name] - grad).abs().max().item() <= 2e-4 * grad.abs().max().item(), name
 
 
+def test_the_simd_preparation_is_the_scalar_one_bit_for_bit():
+    """Gaussians in SIMD lanes (all but the last n % W) against each one alone (the scalar path)."""
+    gm, k = random_scene(203, 64, 48, seed=7, behind=20)
+    logit = gm.logit_opacities.clone()
+    logit[30:40] = -6.0  # opacity 0.0025, below alpha_min: culled
+    s = RenderSettings()
+    ext, pose = cpu_backend.extension(), torch.tensor([[0.0, -1, 0, 0.1], [1, 0, 0, -0.2], [0, 0, 1, 0.3], [0, 0, 0, 1]])
+    params = (gm.means, gm.log_scales, logit, gm.colors, gm.semantics)
+    cam = (k.fx, k.fy, k.cx, k.cy, k.width, k.height, s.near_plane, s.eps2d, s.alpha_min, s.extent_sigma)
+    whole = ext.prepare_world_isotropic(*params, pose, *cam, 2)
+    rows = [ext.prepare_world_isotropic(*(p[i : i + 1] for p in params), pose, *cam, 1) for i in range(203)]
+    assert (whole[6] > 0).sum() > 100 and (whole[6] == 0).sum() >= 30
+    for j, out in enumerate(whole):
+        assert torch.equal(out, torch.cat([r[j] for r in rows])), j
+
+
 def test_finite_differences_on_the_compiled_path():
     gm, k = random_scene(60, 24, 18, seed=3, dtype=torch.float64)
     settings = RenderSettings(backend="cpu")

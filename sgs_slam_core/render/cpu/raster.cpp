@@ -198,26 +198,6 @@ inline V<float> vmin(V<float> a, V<float> b) { return a < b ? a : b; }
 #endif
 inline V<double> vmin(V<double> a, V<double> b) { return a < b ? a : b; }
 inline V<float> vmax(V<float> a, V<float> b) { return a > b ? a : b; }
-// exp(x) for any x: exp_neg's reduction holds up to x = 88 (e^88 ~ 1.65e38 stands for overflow).
-inline V<float> exp_any(V<float> x) { return exp_neg(vmin(x, splat(88.0f))); }
-// Natural log of positive normal numbers (Cephes logf: x = m 2^e, m in [sqrt(1/2), sqrt(2)); ~1 ulp).
-inline V<float> log_pos(V<float> x) {
-  using F = V<float>;
-  using I = Pack<float>::I;
-  const I bits = (I)x;
-  I e = (bits >> 23) - 126;
-  F m = (F)((bits & 0x007fffff) | 0x3f000000);  // [0.5, 1)
-  const I small = m < 0.707106781186547524f;
-  e = small ? e - 1 : e;
-  m = small ? m + m - 1.0f : m - 1.0f;
-  const F fe = __builtin_convertvector(e, F), z = m * m;
-  F y = splat(7.0376836292e-2f);
-  for (const float c : {-1.1514610310e-1f, 1.1676998740e-1f, -1.2420140846e-1f, 1.4249322787e-1f, -1.6668057665e-1f,
-                        2.0000714765e-1f, -2.4999993993e-1f, 3.3333331174e-1f})
-    y = y * m + c;
-  y = y * m * z + fe * -2.12194440e-4f - 0.5f * z;
-  return m + y + fe * 0.693359375f;
-}
 #if defined(__AVX512F__)
 inline V<float> vsqrt(V<float> x) { return (V<float>)_mm512_sqrt_ps((__m512)x); }
 #elif defined(__AVX__)
@@ -1101,10 +1081,12 @@ void prepare_world_all(const Camera& k, int64_t n, int64_t ns, const T* m, const
   }
 }
 
-// prepare_world_all for float, Pack<float>::W Gaussians at a time in SIMD lanes: the same formulas
-// in the same order, with exp and log by polynomials (~1 ulp from the scalar libm's) and IEEE
-// divisions and square roots; the tail (n % W Gaussians) takes the scalar path. Measured on the
-// TUM map (23k Gaussians, 2 AVX-512 cores): BENCHMARKS.md, issue 16, fifth stop.
+// prepare_world_all for float, Pack<float>::W Gaussians at a time in SIMD lanes: the same formulas in
+// the same order, IEEE divisions and square roots in the lanes and the scalar libm's exp and log per
+// lane, so for finite inputs the results are bit for bit the scalar path's (tested). A polynomial exp and log (~1 ulp)
+// were faster still, but rounding-level changes move TUM's chaotic trajectory: its ATE over seeds
+// 0-3 was 3.20 cm on average against 2.82 (BENCHMARKS.md, issue 16, fifth stop). The tail
+// (n % W Gaussians) takes the scalar path.
 void prepare_world(const Camera& k, int64_t n, int64_t ns, const float* m, const float* ls, const float* lo,
                    const float* col, const float* sem, const float* P, float* pmc, float* psc, float* pop, float* pf,
                    float* pm2d, float* pcon, float* prad, int threads) {
@@ -1124,8 +1106,9 @@ void prepare_world(const Camera& k, int64_t n, int64_t ns, const float* m, const
     const F x = load(in[0]), y = load(in[1]), z = load(in[2]);
     F c[3];
     for (int i = 0; i < 3; ++i) c[i] = P[4 * i] * x + P[4 * i + 1] * y + P[4 * i + 2] * z + P[4 * i + 3];
-    const F scale = exp_any(load(in[3]));
-    const F opacity = 1.0f / (1.0f + exp_any(-load(in[4])));
+    F scale, e_lo;  // the scalar libm's exp per lane (the polynomial's rounding changed TUM's chaotic ATE)
+    for (int l = 0; l < W; ++l) scale[l] = std::exp(in[3][l]), e_lo[l] = std::exp(-in[4][l]);
+    const F opacity = 1.0f / (1.0f + e_lo);
     // project_one, lane-parallel
     const F cz = c[2];
     const auto front = cz > pk.near;
@@ -1143,7 +1126,9 @@ void prepare_world(const Camera& k, int64_t n, int64_t ns, const float* m, const
     const F half = 0.5f * (a - cc);
     const F lam = 0.5f * (a + cc) + vsqrt(half * half + b * b);
     const F ratio = vmax(opacity / pk.alpha_min, splat(1.0f));
-    const F extent2 = vmin(2.0f * log_pos(ratio), splat(pk.extent2));
+    F log_ratio;
+    for (int l = 0; l < W; ++l) log_ratio[l] = std::log(ratio[l]);
+    const F extent2 = vmin(2.0f * log_ratio, splat(pk.extent2));
     const F r = vsqrt(extent2 * lam);
     const auto visible = front & (opacity >= pk.alpha_min) & (r < std::numeric_limits<float>::infinity());
     const F rad = visible ? r : splat(0.0f);
@@ -1204,92 +1189,6 @@ void world_backward_all(const Camera& k, int64_t n, int64_t ns, int64_t stride, 
       pmc[3 * g + 2] = gc[2];
     }
   }
-}
-
-// world_backward_all for float, Pack<float>::W Gaussians at a time in SIMD lanes: project_one_backward's
-// formulas in the same order (IEEE divisions), lanes of all-zero rows or behind the near plane set to
-// exact zeros by selection; the tail (n % W Gaussians) takes the scalar path.
-void world_backward(const Camera& k, int64_t n, int64_t ns, int64_t stride, const float* P, const float* mc,
-                    const float* sc, const float* op, const float* r, float* pgm, float* pls, float* plo, float* pcol,
-                    float* psem, float* pmc, int threads) {
-  using F = V<float>;
-  using I = Pack<float>::I;
-  constexpr int W = Pack<float>::W;
-  const int64_t blocks = n / W;
-  const Proj<float> pk(k);
-  const float fx = pk.fx, fy = pk.fy;
-#pragma omp parallel for num_threads(threads) schedule(static)
-  for (int64_t blk = 0; blk < blocks; ++blk) {
-    const int64_t g0 = blk * W;
-    alignas(64) float in[10][W];  // camera-frame x, y, z, scale; row: u, v, A, B, C, depth
-    alignas(64) int32_t nonzero[W];
-    for (int l = 0; l < W; ++l) {
-      const int64_t g = g0 + l;
-      const float* row = r + stride * g;
-      bool zero = true;
-      for (int64_t c = 0; c < stride; ++c) zero &= row[c] == 0.0f;
-      nonzero[l] = zero ? 0 : -1;
-      for (int i = 0; i < 3; ++i) in[i][l] = mc[3 * g + i];
-      in[3][l] = sc[g];
-      for (int i = 0; i < 5; ++i) in[4 + i][l] = row[i];
-      in[9][l] = row[stride - 1];
-    }
-    const F x = load(in[0]), y = load(in[1]), z = load(in[2]), scale = load(in[3]);
-    const F gu = load(in[4]), gv = load(in[5]), gA = load(in[6]), gB = load(in[7]), gC = load(in[8]);
-    I live;
-    std::memcpy(&live, nonzero, sizeof(live));
-    live &= z > pk.near;
-    const F zs = live ? z : splat(1.0f);
-    const F xz = x / zs, yz = y / zs, iz = 1.0f / zs;
-    const F tx = vmin(vmax(xz, splat(pk.lx0)), splat(pk.lx1)), ty = vmin(vmax(yz, splat(pk.ly0)), splat(pk.ly1));
-    const I free_x = (xz > pk.lx0) & (xz < pk.lx1), free_y = (yz > pk.ly0) & (yz < pk.ly1);
-    const F s2 = (scale * iz) * (scale * iz);
-    const F a = s2 * fx * fx * (1.0f + tx * tx) + pk.eps2d;
-    const F b = s2 * fx * fy * tx * ty;
-    const F c = s2 * fy * fy * (1.0f + ty * ty) + pk.eps2d;
-    const F det = a * c - b * b;
-    const F id2 = 1.0f / (det * det);
-    const F g_a = (-c * c * gA + b * c * gB - b * b * gC) * id2;
-    const F g_b = (2.0f * b * c * gA + (-det - 2.0f * b * b) * gB + 2.0f * a * b * gC) * id2;
-    const F g_c = (-b * b * gA + a * b * gB - a * a * gC) * id2;
-    const F g_s2 = g_a * fx * fx * (1.0f + tx * tx) + g_b * fx * fy * tx * ty + g_c * fy * fy * (1.0f + ty * ty);
-    F g_tx = g_a * s2 * fx * fx * 2.0f * tx + g_b * s2 * fx * fy * ty;
-    F g_ty = g_b * s2 * fx * fy * tx + g_c * s2 * fy * fy * 2.0f * ty;
-    g_tx = free_x ? g_tx : splat(0.0f);
-    g_ty = free_y ? g_ty : splat(0.0f);
-    const F g_xz = gu * fx + g_tx, g_yz = gv * fy + g_ty;
-    const F zero = splat(0.0f);
-    const F gc0 = live ? g_xz * iz : zero, gc1 = live ? g_yz * iz : zero;
-    const F gc2 = live ? -(g_xz * xz + g_yz * yz) * iz - 2.0f * s2 * iz * g_s2 + load(in[9]) : zero;
-    const F gs = live ? g_s2 * 2.0f * scale * iz * iz : zero;
-    for (int l = 0; l < W; ++l) {
-      const int64_t g = g0 + l;
-      const float* row = r + stride * g;
-      if (pgm) {
-        for (int j = 0; j < 3; ++j) pgm[3 * g + j] = P[j] * gc0[l] + P[4 + j] * gc1[l] + P[8 + j] * gc2[l];  // R^T g
-        pls[g] = gs[l] * sc[g];
-        plo[g] = row[5] * op[g] * (1.0f - op[g]);
-        for (int j = 0; j < 3; ++j) pcol[3 * g + j] = row[kGeomGrads + j];
-        for (int64_t j = 0; j < ns; ++j) psem[ns * g + j] = row[kGeomGrads + 3 + j];
-      }
-      if (pmc) {
-        pmc[3 * g] = gc0[l];
-        pmc[3 * g + 1] = gc1[l];
-        pmc[3 * g + 2] = gc2[l];
-      }
-    }
-  }
-  const int64_t t0 = blocks * W;  // the tail: the scalar path on the arrays' remaining rows
-  auto at = [t0](float* p, int64_t width) { return p ? p + width * t0 : nullptr; };
-  world_backward_all<float>(k, n - t0, ns, stride, P, mc + 3 * t0, sc + t0, op + t0, r + stride * t0, at(pgm, 3),
-                            at(pls, 1), at(plo, 1), at(pcol, 3), at(psem, ns), at(pmc, 3), 1);
-}
-
-// Other precisions: the scalar path.
-template <typename T>
-void world_backward(const Camera& k, int64_t n, int64_t ns, int64_t stride, const T* P, const T* mc, const T* sc,
-                    const T* op, const T* r, T* pgm, T* pls, T* plo, T* pcol, T* psem, T* pmc, int threads) {
-  world_backward_all<T>(k, n, ns, stride, P, mc, sc, op, r, pgm, pls, plo, pcol, psem, pmc, threads);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1371,7 +1270,7 @@ std::vector<torch::Tensor> world_isotropic_backward(torch::Tensor means, torch::
     T* pcol = need_params ? g_col.data_ptr<T>() : nullptr;
     T* psem = need_params ? g_sem.data_ptr<T>() : nullptr;
     T* pmc = need_pose ? g_mc.data_ptr<T>() : nullptr;
-    world_backward(k, n, ns, stride, P, mc, sc, op, r, pgm, pls, plo, pcol, psem, pmc, static_cast<int>(threads));
+    world_backward_all<T>(k, n, ns, stride, P, mc, sc, op, r, pgm, pls, plo, pcol, psem, pmc, static_cast<int>(threads));
     if (need_pose) {  // d R_ij = sum_g d mc_i m_j, d t_i = sum_g d mc_i
       const T* m = means.data_ptr<T>();
       double acc[12] = {0};
