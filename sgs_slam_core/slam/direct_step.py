@@ -42,11 +42,14 @@ def mapping_step_grads(
     render_settings: RenderSettings,
     semantic: bool,
     weight: float,
+    window_semantic: bool = True,
 ) -> Tensor:  # [] the loss
     """Set each parameter's ``.grad`` to the gradient of ``weight`` x the mapping loss of ``data`` seen from ``w2c``.
 
     As ``render`` + ``mapping_loss`` + ``backward()`` would, including a zero gradient for the
-    semantic features when they are not rendered.
+    semantic features when they are not rendered (``semantic`` False). With ``window_semantic``
+    False (no step of this optimiser renders them) they get no gradient instead: a fresh Adam's
+    zero moments leave them exactly as zero gradients would, without the zeros and their update.
     """
     k = data.intrinsics
     w2c = w2c.to(device=params["means"].device, dtype=params["means"].dtype)
@@ -63,6 +66,8 @@ def mapping_step_grads(
         grads = cpu_backend.world_isotropic_backward(
             state, (g_color, g_sem, g_depth.view(k.height, k.width, 1), None), need_params=True, need_pose=False
         )
-        for name, grad in zip(_FIELDS, grads[:5], strict=True):
-            params[name].grad = grad if name != "semantics" or semantic else torch.zeros_like(params[name])
+        for name, grad in zip(_FIELDS[:4], grads[:4], strict=True):
+            params[name].grad = grad
+        sem_param = params["semantics"]
+        sem_param.grad = grads[4] if semantic else (torch.zeros_like(sem_param) if window_semantic else None)
     return total

@@ -80,6 +80,7 @@ def map_window(
     t0 = time.perf_counter()
     opt = GaussianOptimizer(gaussians, s, frozen_labels)
     direct = direct_available(gaussians.isotropic, gaussians.device, render_settings)
+    window_semantic = use_semantics and any(wf.data.semantic is not None for wf in window)
     pruned, last, done = 0, float("nan"), 0
     prune_at = set(s.prune_iterations)
     for it in range(s.iterations):
@@ -88,7 +89,8 @@ def map_window(
         wf = window[-1] if it < s.current_frame_steps else window[int(rng.integers(len(window)))]
         semantic = use_semantics and wf.data.semantic is not None
         if direct:  # the same kernels without the autograd graph (slam/direct_step.py)
-            loss = mapping_step_grads(opt.params, wf.data, wf.w2c, s, render_settings, semantic, wf.weight)
+            loss = mapping_step_grads(opt.params, wf.data, wf.w2c, s, render_settings, semantic, wf.weight,
+                                      window_semantic)  # fmt: skip
         else:
             with stage("map.render"):
                 out = render(opt.gaussians(), wf.data.intrinsics, wf.w2c, render_settings, with_semantics=semantic)

@@ -113,7 +113,8 @@ def test_the_simd_preparation_is_the_scalar_one_bit_for_bit():
     logit = gm.logit_opacities.clone()
     logit[30:40] = -6.0  # opacity 0.0025, below alpha_min: culled
     s = RenderSettings()
-    ext, pose = cpu_backend.extension(), torch.tensor([[0.0, -1, 0, 0.1], [1, 0, 0, -0.2], [0, 0, 1, 0.3], [0, 0, 0, 1]])
+    ext = cpu_backend.extension()
+    pose = torch.tensor([[0.0, -1, 0, 0.1], [1, 0, 0, -0.2], [0, 0, 1, 0.3], [0, 0, 0, 1]])
     params = (gm.means, gm.log_scales, logit, gm.colors, gm.semantics)
     cam = (k.fx, k.fy, k.cx, k.cy, k.width, k.height, s.near_plane, s.eps2d, s.alpha_min, s.extent_sigma)
     whole = ext.prepare_world_isotropic(*params, pose, *cam, 2)

@@ -57,7 +57,8 @@ def test_the_direct_gradients_are_autograds(semantic: bool, ignore: bool) -> Non
     assert direct.params["semantics"].grad.abs().max() > 0 if semantic else not direct.params["semantics"].grad.any()
 
 
-def test_map_window_takes_the_direct_path_with_the_same_result(monkeypatch) -> None:
+@pytest.mark.parametrize("use_semantics", [True, False])
+def test_map_window_takes_the_direct_path_with_the_same_result(monkeypatch, use_semantics: bool) -> None:
     gm, data = _frame(4, False)
     window = [mapper.WindowFrame(data, torch.eye(4), 1.0), mapper.WindowFrame(data, torch.eye(4), 0.9)]
     s = MappingSettings(iterations=8, prune_iterations=(3,))
@@ -65,10 +66,10 @@ def test_map_window_takes_the_direct_path_with_the_same_result(monkeypatch) -> N
     calls = []
     real = mapper.mapping_step_grads
     monkeypatch.setattr(mapper, "mapping_step_grads", lambda *a, **kw: calls.append(1) or real(*a, **kw))
-    fast = mapper.map_window(gm, window, s, CPU, 1.0, True, np.random.default_rng(0))
+    fast = mapper.map_window(gm, window, s, CPU, 1.0, use_semantics, np.random.default_rng(0))
     assert len(calls) == 8
     monkeypatch.setattr(mapper, "direct_available", lambda *a: False)
-    slow = mapper.map_window(gm, window, s, CPU, 1.0, True, np.random.default_rng(0))
+    slow = mapper.map_window(gm, window, s, CPU, 1.0, use_semantics, np.random.default_rng(0))
     assert len(calls) == 8 and fast.stats.pruned == slow.stats.pruned
     for name in ("means", "log_scales", "logit_opacities", "colors", "semantics", "labels"):
         assert torch.equal(getattr(fast.gaussians, name), getattr(slow.gaussians, name)), name
