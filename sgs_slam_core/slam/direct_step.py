@@ -5,8 +5,9 @@ stages: render (``cpu_backend.world_isotropic_forward``), loss and its gradient 
 render (``losses.mapping_loss_and_grads``), and the render's backward
 (``cpu_backend.world_isotropic_backward``). Calling them in order gives the gradients autograd
 gives through the same kernels, bit for bit (tested), without the autograd graph: two Python
-function nodes, five gradient accumulations and the engine's own work cost ~0.5 ms of a ~5 ms
-step at 160x120 (BENCHMARKS.md, issue 16, fifth stop). Elsewhere (CUDA, anisotropic maps, no
+function nodes, five gradient accumulations and the engine's own work cost ~0.8 ms of a 7.8 ms
+step on the TUM map at 160x120, measured on a loaded 2-core machine (BENCHMARKS.md, issue 16,
+fifth stop). Elsewhere (CUDA, anisotropic maps, no
 compiler) ``mapper.map_window`` takes the autograd path.
 """
 
