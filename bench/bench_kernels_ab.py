@@ -6,7 +6,7 @@ realistic map, then
 times every stage of a mapping render (projection, binning, compositing, its backward, the
 parameters' backward) and the SSIM loss, the two builds alternating call by call so both see the
 same machine. Checks that both builds agree on the images, gradients and losses to within 1e-5 of
-each output's largest entry (rounding: the float kernels use polynomial exp and log). Prints a table;
+each output's largest entry (a revision may differ by rounding). Prints a table;
 does not append to BENCHMARKS.md (a kernel change is recorded with the lever it measures).
 
     python bench/bench_kernels_ab.py [INPUT --downscale F] [--rev HEAD] [--frames 60] [--repeats 5]

@@ -1083,10 +1083,10 @@ void prepare_world_all(const Camera& k, int64_t n, int64_t ns, const T* m, const
 
 // prepare_world_all for float, Pack<float>::W Gaussians at a time in SIMD lanes: the same formulas in
 // the same order, IEEE divisions and square roots in the lanes and the scalar libm's exp and log per
-// lane, so for finite inputs the results are bit for bit the scalar path's (tested). A polynomial exp and log (~1 ulp)
-// were faster still, but rounding-level changes move TUM's chaotic trajectory: its ATE over seeds
-// 0-3 was 3.20 cm on average against 2.82 (BENCHMARKS.md, issue 16, fifth stop). The tail
-// (n % W Gaussians) takes the scalar path.
+// lane, so for finite inputs the results are bit for bit the scalar path's (tested). A polynomial
+// exp and log (~1 ulp) were faster still, but rounding-level changes move TUM's chaotic trajectory:
+// its ATE over seeds 0-3 was 3.20 cm on average against 2.82 (BENCHMARKS.md, issue 16, fifth stop).
+// The tail (n % W Gaussians) takes the scalar path.
 void prepare_world(const Camera& k, int64_t n, int64_t ns, const float* m, const float* ls, const float* lo,
                    const float* col, const float* sem, const float* P, float* pmc, float* psc, float* pop, float* pf,
                    float* pm2d, float* pcon, float* prad, int threads) {
