@@ -1,9 +1,9 @@
-"""Projective point-to-plane ICP between two depth images, coarse to fine (as KinectFusion).
+"""Projective point-to-plane ICP between two RGB-D images, coarse to fine (as KinectFusion).
 
-Tracking uses it to refine the motion prediction before its photometric steps. Adam moves the
-pose by about its learning rate per step, so a prediction that is off by a few frames' motion
-(frames dropped by a live camera, a jerk) takes more steps than the budget; a few Gauss-Newton
-steps on depth close most of that gap for about the cost of one photometric step.
+Optional photometric channels (intensity, semantics) join the depth term through their image
+gradients. Two users: the motion model refines its prediction by depth ICP against the last tracked frame,
+and the Gauss-Newton tracker aligns a frame to the map rendered at the prediction (depth, colour
+and semantics), so the pose moves by a Gauss-Newton step rather than by a learning rate.
 
 Written here rather than taken from a library: Open3D's RGB-D odometry is not among the
 dependencies and works on host arrays, while this runs on the caller's device with no host read
@@ -14,15 +14,27 @@ waits for the GPU.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import ModuleType
 
 import torch
+import torch.nn.functional as nn_f
 from torch import Tensor
 
 from sgs_slam_core.errors import ShapeError
 from sgs_slam_core.geometry.camera import Intrinsics, vertex_map
+from sgs_slam_core.geometry.icp_native import native_terms
 from sgs_slam_core.geometry.se3 import se3_exp
 
-__all__ = ["IcpLevel", "IcpResult", "IcpSettings", "align_depth", "icp_pyramid"]
+__all__ = [
+    "IcpLevel",
+    "IcpResult",
+    "IcpSettings",
+    "align_depth",
+    "align_device",
+    "channel_pyramid",
+    "icp_pyramid",
+    "source_channels",
+]
 
 _MIN_NORMAL_COS = 0.1  # a normal at more than ~84 degrees to its viewing ray spans a depth edge
 
@@ -58,10 +70,22 @@ class IcpSettings:
 
 @dataclass(frozen=True)
 class IcpLevel:
-    """One pyramid level of the reference depth image, packed for one gather per step."""
+    """One pyramid level of the reference image, packed for one gather per step."""
 
     intrinsics: Intrinsics
-    packed: Tensor  # [H * W, 7] float32: camera-frame vertex (m), unit normal facing the camera, valid (0/1)
+    # [H * W, 7 + 3C + 1] float32: camera-frame vertex (m), unit normal facing the camera, valid (0/1);
+    # then, with C photometric channels, their values, d/du, d/dv and their own valid (0/1)
+    packed: Tensor
+    num_channels: int = 0
+
+    def with_channels(self, channels: Tensor) -> IcpLevel:  # [1, 3C + 1, H, W] from channel_pyramid
+        """This level with photometric channels appended to its rows."""
+        if self.num_channels:
+            raise ShapeError("the level has channels already")
+        rows = channels[0].flatten(1).T.to(self.packed.dtype)  # [H * W, 3C + 1]
+        if rows.shape[0] != self.packed.shape[0]:
+            raise ShapeError(f"channels have {rows.shape[0]} pixels, the level {self.packed.shape[0]}")
+        return IcpLevel(self.intrinsics, torch.cat([self.packed, rows], dim=1), (rows.shape[1] - 1) // 3)
 
     @property
     def vertices(self) -> Tensor:  # [H, W, 3]
@@ -135,6 +159,93 @@ def icp_pyramid(depth: Tensor, intrinsics: Intrinsics, levels: int) -> list[IcpL
     return [_level(d, k) for d, k in _scales(depth, intrinsics, levels)]
 
 
+def _blur(image: Tensor) -> Tensor:  # [1, C, H, W] -> [1, C, H, W]
+    """3x3 binomial blur (edges replicated), so a coarse level does not alias the fine one."""
+    c = image.shape[1]
+    taps = torch.tensor([0.25, 0.5, 0.25], dtype=image.dtype, device=image.device)
+    kernel = (taps[:, None] * taps[None, :]).expand(c, 1, 3, 3)
+    return nn_f.conv2d(nn_f.pad(image, (1, 1, 1, 1), mode="replicate"), kernel, groups=c)
+
+
+def _erode(mask: Tensor) -> Tensor:  # [1, 1, H, W] float 0/1 -> [1, 1, H, W]
+    """1 where the pixel and its 8 neighbours are 1."""
+    return -nn_f.max_pool2d(-mask, 3, stride=1, padding=1)
+
+
+def _channel_levels(image: Tensor, levels: int) -> list[Tensor]:  # [H, W, C] -> [1, C, h, w] coarsest first
+    out = [image.permute(2, 0, 1)[None]]
+    for _ in range(levels - 1):
+        out.append(_blur(out[-1])[..., ::2, ::2])
+    return out[::-1]
+
+
+def channel_pyramid(
+    image: Tensor,  # [H, W, C] reference channels, in the units their residuals weigh as (m)
+    valid: Tensor,  # [H, W] bool, where the channels are trusted
+    levels: int,
+) -> list[Tensor]:  # per level, coarsest first: [1, 3C + 1, h, w]
+    """The reference side's channels for :meth:`IcpLevel.with_channels`, subsampled as :func:`icp_pyramid`.
+
+    Each level holds the channels, their central differences along u and v, and a validity that
+    also requires every pixel the blur and the differences touched to be valid.
+    """
+    if image.shape[:2] != valid.shape:
+        raise ShapeError(f"channels are {tuple(image.shape)} but the mask is {tuple(valid.shape)}")
+    masks = [valid[None, None].to(image.dtype)]
+    for _ in range(levels - 1):
+        masks.append(_erode(masks[-1])[..., ::2, ::2])
+    out = []
+    for img, mask in zip(_channel_levels(image, levels), masks[::-1], strict=True):
+        du = torch.zeros_like(img)
+        dv = torch.zeros_like(img)
+        du[..., 1:-1] = (img[..., 2:] - img[..., :-2]) * 0.5
+        dv[..., 1:-1, :] = (img[..., 2:, :] - img[..., :-2, :]) * 0.5
+        ok = _erode(mask)
+        ok[..., 0, :] = ok[..., -1, :] = 0.0
+        ok[..., :, 0] = ok[..., :, -1] = 0.0
+        out.append(torch.cat([img, du, dv, ok], dim=1))
+    return out
+
+
+def source_channels(image: Tensor, levels: int) -> list[Tensor]:  # [H, W, C] -> per level [h * w, C]
+    """The source frame's channels at the pyramid's levels, coarsest first, one row per pixel."""
+    return [lvl[0].flatten(1).T.contiguous() for lvl in _channel_levels(image, levels)]
+
+
+@dataclass(frozen=True)
+class _Association:
+    """Source points projected into the reference level (projective association, nearest pixel)."""
+
+    points: Tensor  # [N, 3] source points in the reference camera frame
+    target: Tensor  # [N, 7 + 3C + 1] the reference row at each projection
+    offset: Tensor | None  # [N, 2] projection minus the nearest pixel centre (pixels), with channels only
+    residual: Tensor  # [N] point-to-plane residual (m)
+    inliers: Tensor  # [N] bool
+
+
+def _associate(
+    src_to_ref: Tensor,  # [4, 4] float64
+    src: Tensor,  # [N, 3] camera-frame points of the source level, z = 0 where invalid
+    ref: IcpLevel,
+    max_distance_m: float,
+) -> _Association:
+    rot, trans = src_to_ref[:3, :3].float(), src_to_ref[:3, 3].float()
+    p = src @ rot.T + trans
+    k = ref.intrinsics
+    z = p[:, 2].clamp_min(1e-6)
+    uc, vc = p[:, 0] / z * k.fx, p[:, 1] / z * k.fy
+    u = torch.floor(uc + (k.cx + 0.5))  # nearest pixel (floor: torch.round is 30x slower on the CPU)
+    v = torch.floor(vc + (k.cy + 0.5))
+    inside = (src[:, 2] > 0) & (p[:, 2] > 1e-6) & (u >= 0) & (u <= k.width - 1) & (v >= 0) & (v <= k.height - 1)
+    index = torch.where(inside, v * k.width + u, 0.0).long()
+    target = ref.packed.index_select(0, index)  # [N, 7 (+ 3C + 1)]
+    n = target[:, 3:6]
+    diff = p - target[:, :3]
+    inliers = inside & (target[:, 6] > 0) & (diff.square().sum(-1) < max_distance_m**2)
+    offset = torch.stack([uc + k.cx - u, vc + k.cy - v], dim=-1) if ref.num_channels else None
+    return _Association(p, target, offset, (diff * n).sum(-1), inliers)
+
+
 def _correspondences(
     src_to_ref: Tensor,  # [4, 4] float64
     src: Tensor,  # [N, 3] camera-frame points of the source level, z = 0 where invalid
@@ -142,29 +253,63 @@ def _correspondences(
     max_distance_m: float,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:  # points [N, 3], normals [N, 3], residuals [N], inliers [N] bool
     """Source points in the reference frame, the reference normal and residual at their projections."""
-    rot, trans = src_to_ref[:3, :3].float(), src_to_ref[:3, 3].float()
-    p = src @ rot.T + trans
-    k = ref.intrinsics
-    z = p[:, 2].clamp_min(1e-6)
-    u = torch.floor(p[:, 0] / z * k.fx + (k.cx + 0.5))  # nearest pixel (floor: torch.round is 30x slower on the CPU)
-    v = torch.floor(p[:, 1] / z * k.fy + (k.cy + 0.5))
-    inside = (src[:, 2] > 0) & (p[:, 2] > 1e-6) & (u >= 0) & (u <= k.width - 1) & (v >= 0) & (v <= k.height - 1)
-    index = torch.where(inside, v * k.width + u, 0.0).long()
-    target = ref.packed.index_select(0, index)  # [N, 7]
-    n = target[:, 3:6]
-    diff = p - target[:, :3]
-    inliers = inside & (target[:, 6] > 0) & (diff.square().sum(-1) < max_distance_m**2)
-    return p, n, (diff * n).sum(-1), inliers
+    a = _associate(src_to_ref, src, ref, max_distance_m)
+    return a.points, a.target[:, 3:6], a.residual, a.inliers
+
+
+def _channel_rows(
+    a: _Association,
+    values: Tensor,  # [N, C] source channels
+    ref: IcpLevel,
+    intrinsics: Intrinsics,
+) -> tuple[Tensor, Tensor, Tensor]:  # rows [N, C, 6] d r / d (rho, phi), residuals [N, C], usable [N, C] bool
+    """Reference channels at the projections minus the source's, and their Jacobians.
+
+    The reference value is the nearest pixel's plus its gradient times the sub-pixel offset (exact
+    for a locally linear image), which needs no second gather.
+    """
+    c = ref.num_channels
+    if a.offset is None or values.shape[1] != c:
+        raise ShapeError(f"the reference level has {c} channels, the source {values.shape[1]}")
+    k, p, t = intrinsics, a.points, a.target
+    gu, gv = t[:, 7 + c : 7 + 2 * c], t[:, 7 + 2 * c : 7 + 3 * c]  # [N, C]
+    r = t[:, 7 : 7 + c] + gu * a.offset[:, :1] + gv * a.offset[:, 1:] - values
+    inv_z = 1.0 / p[:, 2:].clamp_min(1e-6)  # [N, 1]
+    ju, jv = gu * (k.fx * inv_z), gv * (k.fy * inv_z)  # [N, C]: d r / d x, d r / d y
+    jz = -(ju * p[:, :1] + jv * p[:, 1:2]) * inv_z  # d r / d z
+    jp = torch.stack([ju, jv, jz], dim=-1)  # [N, C, 3]
+    rows = torch.cat([jp, torch.linalg.cross(p[:, None].expand_as(jp), jp)], dim=-1)
+    usable = (a.inliers & (t[:, 7 + 3 * c] > 0))[:, None].expand(-1, c)
+    return rows, r, usable
+
+
+def _huber_weight(r: Tensor, usable: Tensor, huber_m: float) -> Tensor:
+    return torch.where(usable, (huber_m / r.abs().clamp_min(1e-12)).clamp(max=1.0), 0.0)
 
 
 def _gauss_newton_step(
-    src_to_ref: Tensor, src: Tensor, ref: IcpLevel, s: IcpSettings
-) -> Tensor:  # src_to_ref [4, 4] float64, src [N, 3] -> the updated pose [4, 4]
-    p, n, r, inliers = _correspondences(src_to_ref, src, ref, s.max_distance_m)
-    weight = torch.where(inliers, (s.huber_m / r.abs().clamp_min(1e-12)).clamp(max=1.0), 0.0)
+    src_to_ref: Tensor, src: Tensor, ref: IcpLevel, s: IcpSettings, values: Tensor | None = None
+) -> Tensor:  # src_to_ref [4, 4] float64, src [N, 3], values [N, C] or None -> the updated pose [4, 4]
+    return _solve(_normal_matrix(src_to_ref, src, ref, s, values), src_to_ref, s)
+
+
+def _normal_matrix(
+    src_to_ref: Tensor, src: Tensor, ref: IcpLevel, s: IcpSettings, values: Tensor | None = None
+) -> Tensor:  # [7, 7] float64: [J^T W J | J^T W r] of the Huber-weighted rows
+    a = _associate(src_to_ref, src, ref, s.max_distance_m)
+    p, n, r = a.points, a.target[:, 3:6], a.residual
+    weight = _huber_weight(r, a.inliers, s.huber_m)
     # rows [d r / d (rho, phi) | r] for a left perturbation; one product gives J^T W J and J^T W r
     rows = torch.cat([n, torch.linalg.cross(p, n), r[:, None]], dim=-1)  # [N, 7]
-    normal = ((rows * weight[:, None]).T @ rows).double()  # [7, 7]
+    if values is not None:
+        jac, rc, usable = _channel_rows(a, values, ref, ref.intrinsics)
+        rows = torch.cat([rows, torch.cat([jac, rc[..., None]], dim=-1).reshape(-1, 7)])  # [N (1 + C), 7]
+        weight = torch.cat([weight, _huber_weight(rc, usable, s.huber_m).reshape(-1)])
+    return ((rows * weight[:, None]).T @ rows).double()
+
+
+def _solve(normal: Tensor, src_to_ref: Tensor, s: IcpSettings) -> Tensor:  # [7, 7] float64 -> the updated pose [4, 4]
+    """The damped Gauss-Newton update of ``src_to_ref`` from ``[J^T W J | J^T W r]``."""
     hessian, gradient = normal[:6, :6], normal[:6, 6]
     eye = torch.eye(6, dtype=torch.float64, device=hessian.device)
     hessian = hessian + (s.damping * hessian.diagonal().mean() + 1e-12) * eye
@@ -181,6 +326,89 @@ def _truncated_cost(r: Tensor, inliers: Tensor, valid: Tensor, s: IcpSettings) -
     return torch.where(inliers, r.double().square().clamp(max=cap), cap * valid.double()).sum()
 
 
+def _channel_cost(pose: Tensor, src: Tensor, values: Tensor, ref: IcpLevel, s: IcpSettings) -> Tensor:  # []
+    """The channels' share of the truncated cost at ``pose`` (every usable source channel value)."""
+    _, rc, usable = _channel_rows(_associate(pose, src, ref, s.max_distance_m), values, ref, ref.intrinsics)
+    cap = (3 * s.huber_m) ** 2
+    return torch.where(usable, rc.double().square().clamp(max=cap), 0.0).sum()
+
+
+@dataclass(frozen=True)
+class DeviceAlignment:
+    """:func:`align_device`'s result, still on the device (nothing read back)."""
+
+    src_to_ref: Tensor  # [4, 4] float64
+    inliers: Tensor  # [] float64, source points with a correspondence at the result
+    sum_sq_m2: Tensor  # [] float64, their summed squared point-to-plane residual (m^2)
+    valid_source: Tensor  # [] float64, source points with depth
+
+
+def align_device(
+    depth: Tensor,  # [H, W] m, 0 = invalid: the source (new) frame
+    intrinsics: Intrinsics,
+    reference: list[IcpLevel],  # icp_pyramid of the reference frame, same intrinsics and level count
+    init_src_to_ref: Tensor,  # [4, 4] float64
+    s: IcpSettings,
+    channels: list[Tensor] | None = None,  # source_channels of the source frame, when the reference has channels
+    native: ModuleType | None = None,  # icp_native.EXTENSION's module: its kernel instead of PyTorch (CPU)
+) -> DeviceAlignment:
+    """:func:`align_depth` without reading the result back (fixed shapes throughout, no host wait)."""
+    iterations = s.steps_for(intrinsics.width)
+    if len(reference) != len(iterations):
+        raise ShapeError(f"reference pyramid has {len(reference)} levels, settings ask for {len(iterations)}")
+    if channels is not None and len(channels) != len(iterations):
+        raise ShapeError(f"source channels have {len(channels)} levels, settings ask for {len(iterations)}")
+    init = pose = init_src_to_ref.to(device=depth.device, dtype=torch.float64)
+    points = []
+    for i, ((d, k), ref, steps) in enumerate(zip(_scales(depth, intrinsics, len(iterations)), reference, iterations,
+                                                 strict=True)):  # fmt: skip
+        if k.shape != ref.intrinsics.shape:
+            raise ShapeError(f"source level is {k.shape}, reference level {ref.intrinsics.shape}")
+        points.append(vertex_map(d, k).reshape(-1, 3))
+        values = None if channels is None else channels[i]
+        for _ in range(steps):
+            if native is None:
+                pose = _gauss_newton_step(pose, points[-1], ref, s, values)
+            else:
+                pose = _solve(_terms(native, pose, points[-1], values, ref, s)[:49].reshape(7, 7), pose, s)
+    values = None if channels is None else channels[-1]
+    if native is None:
+        return _keep_better(init, pose, points[-1], values, reference[-1], s)
+    start, end = (_terms(native, p, points[-1], values, reference[-1], s)[49:] for p in (init, pose))
+    worse = end[0] > start[0]
+    stats = torch.where(worse, start, end)
+    return DeviceAlignment(torch.where(worse, init, pose), stats[1], stats[2], stats[3])
+
+
+def _terms(module: ModuleType, pose: Tensor, points: Tensor, values: Tensor | None, ref: IcpLevel,
+           s: IcpSettings) -> Tensor:  # fmt: skip
+    k = ref.intrinsics
+    return native_terms(module, pose, points, values, ref.packed, (k.fx, k.fy, k.cx, k.cy, k.width, k.height),
+                        s.max_distance_m, s.huber_m)  # fmt: skip
+
+
+def _keep_better(
+    init: Tensor, pose: Tensor, points: Tensor, values: Tensor | None, ref: IcpLevel, s: IcpSettings
+) -> DeviceAlignment:
+    """``pose``, or ``init`` where its full-resolution truncated cost is lower.
+
+    On a view with a weakly constrained direction the coarsest level's association can move a right
+    start centimetres away, and the finer levels do not bring it back.
+    """
+    valid_source = points[:, 2] > 0
+    _, _, r0, inliers0 = _correspondences(init, points, ref, s.max_distance_m)
+    _, _, r, inliers = _correspondences(pose, points, ref, s.max_distance_m)
+    cost0 = _truncated_cost(r0, inliers0, valid_source, s)
+    cost = _truncated_cost(r, inliers, valid_source, s)
+    if values is not None:
+        cost0 = cost0 + _channel_cost(init, points, values, ref, s)
+        cost = cost + _channel_cost(pose, points, values, ref, s)
+    worse = cost > cost0
+    pose, r, inliers = torch.where(worse, init, pose), torch.where(worse, r0, r), torch.where(worse, inliers0, inliers)
+    return DeviceAlignment(pose, inliers.sum().double(), (r.double().square() * inliers).sum(),
+                           valid_source.sum().double())  # fmt: skip
+
+
 def align_depth(
     depth: Tensor,  # [H, W] m, 0 = invalid: the source (new) frame
     intrinsics: Intrinsics,
@@ -189,26 +417,7 @@ def align_depth(
     s: IcpSettings,
 ) -> IcpResult:
     """Refine ``init_src_to_ref`` so the source depth lies on the reference surface (one host read)."""
-    iterations = s.steps_for(intrinsics.width)
-    if len(reference) != len(iterations):
-        raise ShapeError(f"reference pyramid has {len(reference)} levels, settings ask for {len(iterations)}")
-    init = pose = init_src_to_ref.to(device=depth.device, dtype=torch.float64)
-    points = []
-    for (d, k), ref, steps in zip(_scales(depth, intrinsics, len(iterations)), reference, iterations, strict=True):
-        if k.shape != ref.intrinsics.shape:
-            raise ShapeError(f"source level is {k.shape}, reference level {ref.intrinsics.shape}")
-        points.append(vertex_map(d, k).reshape(-1, 3))
-        for _ in range(steps):
-            pose = _gauss_newton_step(pose, points[-1], ref, s)
-    valid_source = points[-1][:, 2] > 0
-    # Never worse than the start at full resolution: on a view with a weakly constrained direction
-    # the 40x30 level's association can move a right start centimetres away (room frames 172-175,
-    # BENCHMARKS.md), and the finer levels do not bring it back.
-    _, _, r0, inliers0 = _correspondences(init, points[-1], reference[-1], s.max_distance_m)
-    _, _, r, inliers = _correspondences(pose, points[-1], reference[-1], s.max_distance_m)
-    worse = _truncated_cost(r, inliers, valid_source, s) > _truncated_cost(r0, inliers0, valid_source, s)
-    pose, r, inliers = torch.where(worse, init, pose), torch.where(worse, r0, r), torch.where(worse, inliers0, inliers)
-    stats = torch.stack([inliers.sum().double(), (r.double().square() * inliers).sum(), valid_source.sum().double()])
-    count_f, sq_f, total_f = stats.tolist()
+    result = align_device(depth, intrinsics, reference, init_src_to_ref, s)
+    count_f, sq_f, total_f = torch.stack([result.inliers, result.sum_sq_m2, result.valid_source]).tolist()
     rms = (sq_f / count_f) ** 0.5 if count_f > 0 else float("inf")
-    return IcpResult(pose, count_f / total_f if total_f > 0 else 0.0, rms)
+    return IcpResult(result.src_to_ref, count_f / total_f if total_f > 0 else 0.0, rms)

@@ -5,12 +5,23 @@ Defaults are SGS-SLAM's Replica values (paper supplementary and released config)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Literal
 
 from sgs_slam_core.errors import ConfigError
 from sgs_slam_core.geometry.icp import IcpSettings
 
-__all__ = ["DensifySettings", "GuardSettings", "KeyframeSettings", "MappingSettings", "TrackingSettings"]
+__all__ = [
+    "DensifySettings",
+    "GaussNewtonSettings",
+    "GuardSettings",
+    "KeyframeSettings",
+    "MappingSettings",
+    "TrackerName",
+    "TrackingSettings",
+]
+
+TrackerName = Literal["adam", "gauss_newton"]
 
 
 def _positive(section: str, **values: float) -> None:
@@ -26,10 +37,61 @@ def _non_negative(section: str, **values: float) -> None:
 
 
 @dataclass(frozen=True)
+class GaussNewtonSettings:
+    """The Gauss-Newton tracker: the map rendered at the prediction, the frame aligned to it.
+
+    Point-to-plane residuals of the frame's points against the rendered depth, and the frame's
+    intensity (and semantic features) against the rendered colour (and semantics) through their
+    image gradients, coarse to fine, Huber-weighted, Levenberg-damped.
+
+    Attributes:
+        iterations: Gauss-Newton steps per pyramid level, coarsest first (the last is the full image).
+        renders: times the map is rendered and the frame aligned to that rendering, each from the
+            last result; one more render judges the result (the Adam tracker's loss, for the guard).
+        max_distance_m: correspondences farther apart than this (m) are left out.
+        huber_m: residuals beyond this (m, or its equivalent for the channels) are down-weighted.
+        damping: Levenberg damping relative to the mean diagonal of the normal matrix.
+        min_width: pyramid levels narrower than this (pixels) are left out.
+        color_scale_m: an intensity difference of 1 (the full range) weighs as this many metres of
+            point-to-plane residual; 0 = depth only.
+        semantic_scale_m: the same for a semantic feature difference of 1; 0 = no semantic term.
+        adam_steps: steps of the Adam tracker after the Gauss-Newton solve (its loss and rates,
+            keeping the best evaluated pose, so never worse than the solve); 0 = none.
+    """
+
+    iterations: tuple[int, ...] = (6, 4, 3)
+    renders: int = 1
+    max_distance_m: float = 0.1
+    huber_m: float = 0.01
+    damping: float = 1e-4
+    min_width: int = 40
+    color_scale_m: float = 0.1
+    semantic_scale_m: float = 0.0
+    adam_steps: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.iterations or any(n < 0 for n in self.iterations) or len(self.iterations) > 6:
+            raise ConfigError(
+                f"tracking.gauss_newton.iterations must be 1 to 6 counts >= 0, got {list(self.iterations)}"
+            )
+        _positive("tracking.gauss_newton", renders=self.renders, max_distance_m=self.max_distance_m,
+                  huber_m=self.huber_m, min_width=self.min_width)  # fmt: skip
+        _non_negative("tracking.gauss_newton", damping=self.damping, color_scale_m=self.color_scale_m,
+                      semantic_scale_m=self.semantic_scale_m, adam_steps=self.adam_steps)  # fmt: skip
+
+    @property
+    def icp(self) -> IcpSettings:
+        """The alignment's settings."""
+        return IcpSettings(self.iterations, self.max_distance_m, self.huber_m, self.damping, self.min_width)
+
+
+@dataclass(frozen=True)
 class TrackingSettings:
     """Camera tracking against the fixed map.
 
     Attributes:
+        method: ``adam`` (the paper's: Adam steps on the rendering loss, each rendering the map and
+            back-propagating through the renderer) or ``gauss_newton`` (``gauss_newton`` section).
         iterations: budget of optimiser steps per frame.
         lr_rotation, lr_translation: Adam learning rates of the camera-frame rotation (rad) and
             translation (m) increment; the paper's quaternion rates map to twice their value here.
@@ -57,8 +119,10 @@ class TrackingSettings:
             costs accuracy on TUM's Kinect depth at 160x120 (ATE 4.57 against 3.16 cm,
             BENCHMARKS.md); with the default, a run without gaps never uses it.
         use_gt_pose: replace tracking by the ground-truth pose (ablation; needs ground truth).
+        gauss_newton: the Gauss-Newton tracker's settings (``method: gauss_newton``).
     """
 
+    method: TrackerName = "adam"
     iterations: int = 40
     lr_rotation: float = 8e-4
     lr_translation: float = 2e-3
@@ -77,6 +141,7 @@ class TrackingSettings:
     icp_min_inliers: float = 0.3
     icp_min_gap: float = 1.5
     use_gt_pose: bool = False
+    gauss_newton: GaussNewtonSettings = field(default_factory=GaussNewtonSettings)
 
     def __post_init__(self) -> None:
         _positive("tracking", iterations=self.iterations, lr_rotation=self.lr_rotation,

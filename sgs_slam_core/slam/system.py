@@ -17,6 +17,7 @@ from sgs_slam_core.editing import EditRecord, EditRequest
 from sgs_slam_core.errors import BackendUnavailableError, FrameError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.geometry import icp_native
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.se3 import se3_inverse
 from sgs_slam_core.labels import LabelTable
@@ -34,7 +35,8 @@ from sgs_slam_core.slam.icp_init import IcpInit
 from sgs_slam_core.slam.keyframes import Window, is_keyframe, select_window
 from sgs_slam_core.slam.mapper import MapResult, MapStats, WindowFrame, map_window
 from sgs_slam_core.slam.pose import predict_constant_velocity
-from sgs_slam_core.slam.tracker import TrackResult, track
+from sgs_slam_core.slam.tracker import TrackResult
+from sgs_slam_core.slam.trackers import build_tracker
 
 __all__ = ["MapOutcome", "Slam", "StepResult", "TrackOutcome", "resolve_device"]
 
@@ -129,6 +131,8 @@ class Slam:
             if self.config.render.backend in ("auto", "cpu"):
                 extensions.append(cpu_backend.EXTENSION)
             extensions.append(photometric.EXTENSION)
+            if self.config.tracking.method == "gauss_newton" and self.config.render.backend in ("auto", "cpu"):
+                extensions.append(icp_native.EXTENSION)
         native.prepare(extensions, announce)
 
     # ------------------------------------------------------------------ state
@@ -155,6 +159,7 @@ class Slam:
         self._min_interval_ns: int | None = None  # shortest stamp gap between two tracked frames
         icp = self.config.tracking.icp
         self._icp = None if icp is None else IcpInit(icp, self.config.tracking.icp_min_inliers)
+        self.tracker = build_tracker(self.config.tracking, self.config.render)
 
     @property
     def num_gaussians(self) -> int:
@@ -391,8 +396,7 @@ class Slam:
         if self._icp is not None and self._intervals_since_last(frame.stamp_ns) >= self.config.tracking.icp_min_gap:
             init_c2w, _ = self._icp.refine(torch.where(data.valid, data.depth, 0.0), data.intrinsics, init_c2w)
         use_sem = frame.labels is not None and self.config.tracking.weight_semantic > 0
-        return track(self.gaussians, data, np.linalg.inv(init_c2w), self.config.tracking, self.config.render, use_sem,
-                     newer_frame_waiting)  # fmt: skip
+        return self.tracker.track(self.gaussians, data, np.linalg.inv(init_c2w), use_sem, newer_frame_waiting)
 
     def _intervals_since_last(self, stamp_ns: int) -> float:
         """Camera frame intervals since the last tracked frame: about 1 when none was dropped, 0 unknown.

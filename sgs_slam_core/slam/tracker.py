@@ -35,6 +35,7 @@ class TrackResult:
     depth_residual_m: float  # mean |D - D_gt| over the loss mask at the best pose
     valid_fraction: float  # fraction of pixels in the loss mask at the best pose
     time_s: float
+    renders: int = 0  # renderings of the map this frame took (0 = as many as iterations)
 
 
 def track(

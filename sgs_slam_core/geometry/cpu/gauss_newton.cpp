@@ -1,0 +1,152 @@
+// One Gauss-Newton step's normal equations of projective point-to-plane ICP with photometric
+// channels, in one pass over the source points: the same maths as geometry/icp.py's
+// `_gauss_newton_step` (its pure-PyTorch reference, which tests compare against).
+//
+// For each source point s with depth: p = R s + t in the reference camera, projected to its
+// nearest reference pixel; a geometric correspondence when that pixel's vertex v and normal n are
+// valid and |p - v| < max_distance. Its residual r = (p - v) . n has the row
+//   [n, p x n | r]   (d r / d (rho, phi) for a left perturbation, then r)
+// with the Huber weight w = min(1, huber / |r|). Each of the C channels adds, where the reference
+// pixel's channels are valid, r_c = I(nearest) + dI/du du + dI/dv dv - I_src (du, dv: the projection's
+// sub-pixel offset) with the row [J, p x J | r_c], J = dI/du fx/z (1, 0, -x/z) + dI/dv fy/z (0, 1, -y/z).
+// Sums are kept per thread in double and added in thread order (deterministic for a thread count).
+//
+// Returns 53 doubles: the 7x7 matrix sum(w row^T row) (its [6, 6] block is J^T W J, its last column
+// J^T W r), the truncated cost sum(min(r^2, (3 huber)^2)) over geometric correspondences plus the cap
+// for every other source point with depth plus the same for usable channel values (0 cap there),
+// the number of correspondences, their sum of r^2, and the number of source points with depth.
+
+#include <torch/extension.h>
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+namespace {
+
+constexpr int kUpper = 28;  // entries i <= j of a symmetric 7x7 matrix
+constexpr int kStats = 4;   // truncated cost, correspondences, their sum of r^2, source points with depth
+
+inline void accumulate(double* acc, const float* row, float w) {
+  int k = 0;
+  for (int i = 0; i < 7; ++i) {
+    const double wi = static_cast<double>(w) * row[i];
+    for (int j = i; j < 7; ++j) acc[k++] += wi * row[j];
+  }
+}
+
+inline void cross_row(float* row, float px, float py, float pz) {
+  // row[0..2] = J (d r / d p); row[3..5] = p x J
+  row[3] = py * row[2] - pz * row[1];
+  row[4] = pz * row[0] - px * row[2];
+  row[5] = px * row[1] - py * row[0];
+}
+
+}  // namespace
+
+torch::Tensor gauss_newton_terms(torch::Tensor pose, torch::Tensor points, torch::Tensor values,
+                                 torch::Tensor packed, double fx, double fy, double cx, double cy,
+                                 int64_t width, int64_t height, double max_distance, double huber,
+                                 int64_t threads) {
+  TORCH_CHECK(pose.sizes() == torch::IntArrayRef({4, 4}), "pose must be [4, 4]");
+  TORCH_CHECK(points.dim() == 2 && points.size(1) == 3 && points.scalar_type() == torch::kFloat32,
+              "points must be [N, 3] float32");
+  TORCH_CHECK(packed.dim() == 2 && packed.scalar_type() == torch::kFloat32, "packed must be [H * W, P] float32");
+  TORCH_CHECK(packed.size(0) == width * height, "packed rows must be width * height");
+  const int64_t n = points.size(0);
+  const int64_t c = values.numel() ? values.size(1) : 0;
+  const int64_t stride = packed.size(1);
+  TORCH_CHECK(stride == 7 + (c ? 3 * c + 1 : 0) || (c == 0 && stride >= 7), "packed has the wrong column count");
+  TORCH_CHECK(c == 0 || (values.size(0) == n && values.scalar_type() == torch::kFloat32),
+              "values must be [N, C] float32");
+  const auto pose_f = pose.to(torch::kFloat32).contiguous();  // the reference transforms in float32
+  const float* m = pose_f.data_ptr<float>();
+  const float r00 = m[0], r01 = m[1], r02 = m[2], t0 = m[3];
+  const float r10 = m[4], r11 = m[5], r12 = m[6], t1 = m[7];
+  const float r20 = m[8], r21 = m[9], r22 = m[10], t2 = m[11];
+  const auto pts_c = points.contiguous();
+  const auto val_c = values.contiguous();
+  const auto tab_c = packed.contiguous();
+  const float* pts = pts_c.data_ptr<float>();
+  const float* val = c ? val_c.data_ptr<float>() : nullptr;
+  const float* tab = tab_c.data_ptr<float>();
+  const float ffx = static_cast<float>(fx), ffy = static_cast<float>(fy);
+  const float cxh = static_cast<float>(cx + 0.5), cyh = static_cast<float>(cy + 0.5);
+  const float fcx = static_cast<float>(cx), fcy = static_cast<float>(cy);
+  const float max_d2 = static_cast<float>(max_distance * max_distance);
+  const float hub = static_cast<float>(huber);
+  const double cap = 9.0 * huber * huber;
+  const int nthreads = static_cast<int>(std::max<int64_t>(1, threads));
+  std::vector<double> partial(static_cast<size_t>(nthreads) * (kUpper + kStats), 0.0);
+
+#pragma omp parallel num_threads(nthreads)
+  {
+    double* acc = partial.data() + static_cast<size_t>(omp_get_thread_num()) * (kUpper + kStats);
+    double* st = acc + kUpper;
+    float row[7];
+#pragma omp for schedule(static)
+    for (int64_t i = 0; i < n; ++i) {
+      const float* s = pts + 3 * i;
+      if (!(s[2] > 0.0f)) continue;
+      st[3] += 1.0;
+      const float px = s[0] * r00 + s[1] * r01 + s[2] * r02 + t0;
+      const float py = s[0] * r10 + s[1] * r11 + s[2] * r12 + t1;
+      const float pz = s[0] * r20 + s[1] * r21 + s[2] * r22 + t2;
+      if (!(pz > 1e-6f)) {
+        st[0] += cap;
+        continue;
+      }
+      const float uc = px / pz * ffx, vc = py / pz * ffy;
+      const float u = std::floor(uc + cxh), v = std::floor(vc + cyh);
+      if (!(u >= 0.0f && u <= static_cast<float>(width - 1) && v >= 0.0f && v <= static_cast<float>(height - 1))) {
+        st[0] += cap;
+        continue;
+      }
+      const float* t = tab + (static_cast<int64_t>(v) * width + static_cast<int64_t>(u)) * stride;
+      const float dx = px - t[0], dy = py - t[1], dz = pz - t[2];
+      if (!(t[6] > 0.0f) || !(dx * dx + dy * dy + dz * dz < max_d2)) {
+        st[0] += cap;
+        continue;
+      }
+      const float r = dx * t[3] + dy * t[4] + dz * t[5];
+      row[0] = t[3], row[1] = t[4], row[2] = t[5], row[6] = r;
+      cross_row(row, px, py, pz);
+      accumulate(acc, row, std::min(1.0f, hub / std::max(std::fabs(r), 1e-12f)));
+      const double r2 = static_cast<double>(r) * r;
+      st[0] += std::min(r2, cap);
+      st[1] += 1.0;
+      st[2] += r2;
+      if (c == 0 || !(t[7 + 3 * c] > 0.0f)) continue;
+      const float du = uc + fcx - u, dv = vc + fcy - v, inv_z = 1.0f / pz;
+      for (int64_t k = 0; k < c; ++k) {
+        const float gu = t[7 + c + k], gv = t[7 + 2 * c + k];
+        const float rc = t[7 + k] + gu * du + gv * dv - val[i * c + k];
+        const float ju = gu * (ffx * inv_z), jv = gv * (ffy * inv_z);
+        row[0] = ju, row[1] = jv, row[2] = -(ju * px + jv * py) * inv_z, row[6] = rc;
+        cross_row(row, px, py, pz);
+        accumulate(acc, row, std::min(1.0f, hub / std::max(std::fabs(rc), 1e-12f)));
+        st[0] += std::min(static_cast<double>(rc) * rc, cap);
+      }
+    }
+  }
+  auto out = torch::zeros({49 + kStats}, torch::kFloat64);
+  double* o = out.data_ptr<double>();
+  for (int th = 0; th < nthreads; ++th) {
+    const double* acc = partial.data() + static_cast<size_t>(th) * (kUpper + kStats);
+    int k = 0;
+    for (int i = 0; i < 7; ++i)
+      for (int j = i; j < 7; ++j, ++k) {
+        o[i * 7 + j] += acc[k];
+        if (j != i) o[j * 7 + i] += acc[k];
+      }
+    for (int s = 0; s < kStats; ++s) o[49 + s] += acc[kUpper + s];
+  }
+  return out;
+}
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("gauss_newton_terms", &gauss_newton_terms, py::call_guard<py::gil_scoped_release>(),
+        "Normal equations and truncated cost of one Gauss-Newton step (see the file's header)");
+}

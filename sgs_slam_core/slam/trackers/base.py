@@ -1,0 +1,32 @@
+"""The tracker interface: one frame's pose against a fixed map."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+import numpy as np
+
+from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.slam.frame_data import FrameTensors
+from sgs_slam_core.slam.tracker import TrackResult
+
+__all__ = ["Tracker"]
+
+
+class Tracker(Protocol):
+    """Estimates a frame's world-to-camera pose against a map that it does not change."""
+
+    def track(
+        self,
+        gaussians: GaussianMap,
+        frame: FrameTensors,
+        init_w2c: np.ndarray,  # [4, 4] float64, the motion model's prediction
+        use_semantics: bool,
+        newer_frame_waiting: Callable[[], bool] | None = None,
+    ) -> TrackResult:
+        """The pose of ``frame`` and how tracking went.
+
+        ``newer_frame_waiting`` (live): once it returns True the tracker ends as soon as it may.
+        """
+        ...

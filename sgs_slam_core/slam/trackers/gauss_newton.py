@@ -1,0 +1,146 @@
+"""Frame-to-model tracking by Gauss-Newton: render the map once at the prediction, then solve.
+
+The frame's points are aligned to the rendering's vertices and normals (point-to-plane, projective
+association) and its intensity and semantic features to the rendered ones through their image
+gradients, coarse to fine, with analytic Jacobians (``geometry.icp``). No autograd runs through
+the renderer, every step has a fixed shape, and the host reads the result once.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from types import ModuleType
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.geometry.icp import IcpLevel, align_device, channel_pyramid, icp_pyramid, source_channels
+from sgs_slam_core.geometry.icp_native import EXTENSION
+from sgs_slam_core.geometry.se3 import se3_inverse
+from sgs_slam_core.profiling import stage
+from sgs_slam_core.render.api import RenderOutput, render
+from sgs_slam_core.render.settings import RenderSettings
+from sgs_slam_core.slam.frame_data import FrameTensors
+from sgs_slam_core.slam.losses import tracking_loss
+from sgs_slam_core.slam.settings import TrackingSettings
+from sgs_slam_core.slam.tracker import TrackResult, track
+
+__all__ = ["GaussNewtonTracker"]
+
+_LUMA = (0.299, 0.587, 0.114)  # ITU-R BT.601 weights of R, G, B in the intensity
+
+
+class GaussNewtonTracker:
+    """Renders the map ``gauss_newton.renders`` times per frame and solves for the pose by Gauss-Newton.
+
+    The result is judged by the Adam tracker's loss at one more rendering, so the failure guard sees
+    the same quantities whichever tracker runs; ``gauss_newton.adam_steps`` > 0 polishes it with
+    that many Adam steps instead.
+    """
+
+    def __init__(self, settings: TrackingSettings, render_settings: RenderSettings) -> None:
+        self.settings, self.render_settings = settings, render_settings
+        self.gn = settings.gauss_newton
+        self.icp = self.gn.icp
+
+    def _native(self, device: torch.device) -> ModuleType | None:
+        """The compiled step on the CPU where the render backend allows compiled kernels, else None."""
+        if device.type != "cpu" or self.render_settings.backend not in ("auto", "cpu"):
+            return None
+        return EXTENSION.module() if EXTENSION.is_available() else None
+
+    def track(
+        self,
+        gaussians: GaussianMap,
+        frame: FrameTensors,
+        init_w2c: np.ndarray,  # [4, 4] float64
+        use_semantics: bool,
+        newer_frame_waiting: Callable[[], bool] | None = None,
+    ) -> TrackResult:
+        """Gauss-Newton from ``init_w2c`` against the map rendered there.
+
+        ``newer_frame_waiting`` matters only to the optional Adam steps: the solve itself costs a
+        fixed, small number of renders.
+        """
+        t0 = time.perf_counter()
+        fixed = gaussians.detach()
+        semantic = use_semantics and frame.semantic is not None and self.gn.semantic_scale_m > 0
+        w2c = self._solve(fixed, frame, torch.as_tensor(init_w2c, dtype=torch.float64, device=fixed.device), semantic)
+        steps = sum(self.icp.steps_for(frame.intrinsics.width)) * self.gn.renders
+        if self.gn.adam_steps > 0:
+            adam = replace(self.settings, iterations=self.gn.adam_steps)
+            polished = track(gaussians, frame, w2c.cpu().numpy(), adam, self.render_settings, use_semantics,
+                             newer_frame_waiting)  # fmt: skip
+            return replace(polished, iterations=steps + polished.iterations, time_s=time.perf_counter() - t0,
+                           renders=self.gn.renders + polished.iterations)  # fmt: skip
+        return self._judge(fixed, frame, w2c, use_semantics, init_w2c, steps, t0)
+
+    def _solve(self, gaussians: GaussianMap, frame: FrameTensors, w2c: Tensor, semantic: bool) -> Tensor:
+        """The aligned world-to-camera pose [4, 4] float64, on the device."""
+        k = frame.intrinsics
+        levels = len(self.icp.steps_for(k.width))
+        depth = torch.where(frame.valid, frame.depth, 0.0)
+        channels = self._channels(frame.rgb, frame.semantic if semantic else None)
+        sources = None if channels is None else source_channels(channels, levels)
+        eye = torch.eye(4, dtype=torch.float64, device=w2c.device)
+        native = self._native(w2c.device)
+        for _ in range(self.gn.renders):
+            with stage("track.render"):
+                out = render(gaussians, k, w2c.float(), self.render_settings, with_semantics=semantic)
+            with stage("track.solve"):
+                reference = self._reference(out, k, levels, semantic)
+                aligned = align_device(depth, k, reference, eye, self.icp, sources, native)
+                w2c = se3_inverse(aligned.src_to_ref) @ w2c  # the frame's camera -> the rendered camera
+        return w2c
+
+    def _reference(self, out: RenderOutput, k: Intrinsics, levels: int, semantic: bool) -> list[IcpLevel]:
+        """The rendering as the alignment's reference: depth normalised by the silhouette where confident."""
+        confident = (out.silhouette > self.settings.sil_threshold) & torch.isfinite(out.depth)
+        depth = torch.where(confident, out.depth / out.silhouette.clamp_min(1e-6), 0.0)
+        geometry = icp_pyramid(depth, k, levels)
+        channels = self._channels(out.color, out.semantic if semantic else None)
+        if channels is None:
+            return geometry
+        images = channel_pyramid(channels, confident, levels)
+        return [level.with_channels(image) for level, image in zip(geometry, images, strict=True)]
+
+    def _channels(self, rgb: Tensor, semantic: Tensor | None) -> Tensor | None:  # [H, W, 3], [H, W, S] -> [H, W, C]
+        """Intensity and semantic features scaled to metres of residual; None when both terms are off."""
+        parts = []
+        if self.gn.color_scale_m > 0:
+            luma = torch.tensor(_LUMA, dtype=rgb.dtype, device=rgb.device) * self.gn.color_scale_m
+            parts.append((rgb @ luma)[..., None])
+        if semantic is not None:
+            parts.append(semantic * self.gn.semantic_scale_m)
+        return torch.cat(parts, dim=-1) if parts else None
+
+    def _judge(
+        self,
+        gaussians: GaussianMap,
+        frame: FrameTensors,
+        w2c: Tensor,  # [4, 4] float64
+        use_semantics: bool,
+        init_w2c: np.ndarray,
+        steps: int,
+        t0: float,
+    ) -> TrackResult:
+        """The tracking loss at the solved pose, read back with the pose in one host read."""
+        with stage("track.render"):
+            out = render(gaussians, frame.intrinsics, w2c.float(), self.render_settings, with_semantics=use_semantics)
+        with stage("track.loss"):
+            loss = tracking_loss(out, frame, self.settings, use_semantics)
+            stats = torch.stack([loss.total.detach().double(), loss.pixels.double(),
+                                 loss.depth_residual_m.detach().double()])  # fmt: skip
+        values = torch.cat([stats, w2c.reshape(-1)]).cpu().numpy()
+        value, pixels, residual = (float(v) for v in values[:3])
+        renders = self.gn.renders + 1
+        if pixels == 0:  # nothing explained at the result: keep the prediction, as the Adam tracker does
+            return TrackResult(init_w2c.copy(), steps, False, float("inf"), 0.0, float("inf"), 0.0,
+                               time.perf_counter() - t0, renders)  # fmt: skip
+        return TrackResult(values[3:].reshape(4, 4), steps, True, value, value / pixels, residual,
+                           pixels / frame.depth.numel(), time.perf_counter() - t0, renders)  # fmt: skip
