@@ -12,6 +12,7 @@ from sgs_slam_core.slam.settings import (
     DensifySettings,
     GuardSettings,
     KeyframeSettings,
+    LiveSettings,
     MappingSettings,
     TrackingSettings,
 )
@@ -38,6 +39,7 @@ class SlamConfig:
     guard: GuardSettings = field(default_factory=GuardSettings)
     render: RenderSettings = field(default_factory=RenderSettings)
     semantic: SemanticSettings = field(default_factory=SemanticSettings)
+    live: LiveSettings = field(default_factory=LiveSettings)
     device: DeviceName = "auto"
     seed: int = 0
     eval_every: int = 5

@@ -80,15 +80,8 @@ class SlamPipeline:
 
     ``track`` / ``map``: which workers run here (a standalone tracking or mapping node runs one).
     ``ready_to_track(frames_tracked)``: an extra lockstep condition (a remote map has caught up).
-    ``map_turn_fraction``: live on the CPU, the steps a tracked frame's mapping job makes before the
-    next frame is tracked, as a fraction of ``mapping.iterations`` (rounded up). On the room at
-    10 Hz (2 cores) a tenth tracked 138 and 139 of 200 frames at ATE 0.41 and 0.43 cm; a turn in
-    time instead (a share of the frame's tracking time, with tracking beside an unfinished job)
-    tracked about half at 3.4-4.0 cm (BENCHMARKS.md).
-    ``preempt_fraction``: live with mapping on its own stream (CUDA), a mapping job ends once it has
-    made this fraction of its iterations and a newer frame waits to be mapped (so every frame mapped
-    densifies the map, and mapping keeps near the camera instead of finishing old frames); 1 never
-    ends a job early.
+    How live work shares the machine comes from ``slam.config.live`` (``map_turn_fraction``,
+    ``preempt_fraction``).
     Listeners are called on the worker threads; one that raises is logged and counted.
     """
 
@@ -100,8 +93,6 @@ class SlamPipeline:
         map: bool = True,
         log: Callable[[str], None] = print,
         ready_to_track: Callable[[int], bool] | None = None,
-        preempt_fraction: float = 1 / 3,
-        map_turn_fraction: float = 1 / 10,
     ) -> None:
         self.slam, self.lockstep, self.log = slam, lockstep, log
         self.track_enabled, self.map_enabled = track, map
@@ -118,12 +109,12 @@ class SlamPipeline:
         self._map_stream = torch.cuda.Stream(slam.device) if slam.device.type == "cuda" else None
         # live on the CPU: tracking and mapping take turns instead of sharing the cores (see the module doc)
         self._share_cpu = not lockstep and track and map and slam.device.type == "cpu"
-        iterations = slam.config.mapping.iterations
+        iterations, live = slam.config.mapping.iterations, slam.config.live
         # live on the CPU: steps of a tracked frame's job before the next frame is tracked
-        self._turn_steps = math.ceil(map_turn_fraction * iterations) if self._share_cpu else 0
+        self._turn_steps = math.ceil(live.map_turn_fraction * iterations) if self._share_cpu else 0
         self._map_steps = 0  # steps the current mapping job has made
         # live beside tracking: a job with a newer one waiting ends after this many steps (0: it never does)
-        self._preempt_steps = 0 if lockstep or self._share_cpu else math.ceil(preempt_fraction * iterations)
+        self._preempt_steps = 0 if lockstep or self._share_cpu else math.ceil(live.preempt_fraction * iterations)
         self._threads = []
         if track:
             self._threads.append(threading.Thread(target=self._track_loop, name="sgs-track", daemon=True))

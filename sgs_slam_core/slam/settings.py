@@ -16,6 +16,7 @@ __all__ = [
     "GaussNewtonSettings",
     "GuardSettings",
     "KeyframeSettings",
+    "LiveSettings",
     "MappingSettings",
     "TrackerName",
     "TrackingSettings",
@@ -318,3 +319,25 @@ class GuardSettings:
         _non_negative("guard", warmup_frames=self.warmup_frames, min_residual_m=self.min_residual_m)
         if not 0 <= self.min_valid_fraction < 1:
             raise ConfigError("guard.min_valid_fraction must be in [0, 1)")
+
+
+@dataclass(frozen=True)
+class LiveSettings:
+    """Live operation (``--realtime``, the ROS nodes); lockstep runs ignore it.
+
+    Attributes:
+        map_turn_fraction: on the CPU, where tracking and mapping take turns, the mapping steps a
+            tracked frame's job makes before the next waiting frame is tracked, as a fraction of
+            ``mapping.iterations`` (rounded up; 0 = none: a waiting frame is tracked at once, and
+            mapping only fills the time between frames).
+        preempt_fraction: with mapping on its own CUDA stream beside tracking, a job ends once it
+            made this fraction of its steps and a newer frame waits to be mapped (1 = never early).
+    """
+
+    map_turn_fraction: float = 0.1
+    preempt_fraction: float = 1 / 3
+
+    def __post_init__(self) -> None:
+        for name, value in (("map_turn_fraction", self.map_turn_fraction), ("preempt_fraction", self.preempt_fraction)):
+            if not 0 <= value <= 1:
+                raise ConfigError(f"live.{name} must be in [0, 1], got {value}")

@@ -16,6 +16,7 @@ from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.metrics import read_tum_trajectory
 from sgs_slam_core.runner.realtime import _Replay, release_times, run_realtime
+from sgs_slam_core.slam.settings import LiveSettings
 from sgs_slam_core.slam.system import Slam, TrackOutcome
 
 from ..conftest import FAST_SLAM
@@ -24,10 +25,10 @@ from ..conftest import FAST_SLAM
 class GatedSlam:
     """Stands in for Slam: tracking blocks until released, so the test decides what is busy when."""
 
-    def __init__(self, device: str = "cpu") -> None:
+    def __init__(self, device: str = "cpu", live: LiveSettings | None = None) -> None:
         self.device = torch.device(device)
         # live: a job's turn on the CPU is ceil(20 / 10) = 2 steps; elsewhere it may end after ceil(20 / 3) = 7
-        self.config = SimpleNamespace(mapping=SimpleNamespace(iterations=20))
+        self.config = SimpleNamespace(mapping=SimpleNamespace(iterations=20), live=live or LiveSettings())
         self.frames_processed, self.num_gaussians = 0, 0
         self.gate = threading.Semaphore(0)
         self.tracked: list[int] = []
@@ -48,8 +49,8 @@ class GatedSlam:
 class TimedSlam(GatedSlam):
     """Tracking takes 30 ms; mapping runs up to 20 steps of 5 ms; each records whether the other ran."""
 
-    def __init__(self, device: str = "cpu") -> None:
-        super().__init__(device)
+    def __init__(self, device: str = "cpu", live: LiveSettings | None = None) -> None:
+        super().__init__(device, live)
         self.tracking_now = self.mapping_now = self.job_now = False
         self.steps_during_tracking = self.tracks_during_steps = self.tracks_during_jobs = 0
         self.steps = 0
@@ -117,8 +118,9 @@ def test_live_on_the_cpu_mapping_steps_never_start_while_a_frame_is_tracked():
         pipeline.shutdown()
 
 
-def test_live_on_the_cpu_a_tracked_frames_job_makes_its_turn_then_ends_for_the_next_frame():
-    slam = TimedSlam()
+@pytest.mark.parametrize(("turn", "steps"), [(0.1, 2), (0.25, 5)])
+def test_live_on_the_cpu_a_tracked_frames_job_makes_its_turn_then_ends_for_the_next_frame(turn, steps):
+    slam = TimedSlam(live=LiveSettings(map_turn_fraction=turn))
     pipeline = SlamPipeline(slam, lockstep=False, log=lambda _: None)
     try:
         for i in range(12):  # a 100 Hz camera: a frame always waits once a job has made its turn
@@ -126,7 +128,7 @@ def test_live_on_the_cpu_a_tracked_frames_job_makes_its_turn_then_ends_for_the_n
             time.sleep(0.01)
         assert pipeline.wait_idle(20.0)
         assert slam.tracks_during_jobs == 0  # the next frame meets the map with the last one in it
-        assert slam.job_steps[:-1] == [2] * (len(slam.job_steps) - 1) and len(slam.job_steps) >= 2
+        assert slam.job_steps[:-1] == [steps] * (len(slam.job_steps) - 1) and len(slam.job_steps) >= 2
         assert slam.job_steps[-1] == 20  # nothing waits after the last frame: its job runs to the end
         assert pipeline.stats.dropped_jobs == 0
     finally:
