@@ -53,11 +53,14 @@ class GaussNewtonSettings:
         huber_m: residuals beyond this (m, or its equivalent for the channels) are down-weighted.
         damping: Levenberg damping relative to the mean diagonal of the normal matrix.
         min_width: pyramid levels narrower than this (pixels) are left out.
-        color_scale_m: an intensity difference of 1 (the full range) weighs as this many metres of
+        color_scale_m: a colour difference of 1 (the full range) weighs as this many metres of
             point-to-plane residual; 0 = depth only.
+        color_channels: ``intensity`` (one channel, BT.601 luma) or ``rgb`` (three).
         semantic_scale_m: the same for a semantic feature difference of 1; 0 = no semantic term.
-        adam_steps: steps of the Adam tracker after the Gauss-Newton solve (its loss and rates,
-            keeping the best evaluated pose, so never worse than the solve); 0 = none.
+        adam_steps: steps of the Adam tracker after the Gauss-Newton solve (its loss, keeping the
+            best evaluated pose, so never worse than the solve by that loss); 0 = none.
+        adam_lr_scale: those steps' learning rates as a fraction of ``tracking.lr_*`` (the solve
+            starts them near the optimum, where the full rates overshoot).
     """
 
     iterations: tuple[int, ...] = (6, 4, 3)
@@ -67,8 +70,10 @@ class GaussNewtonSettings:
     damping: float = 1e-4
     min_width: int = 40
     color_scale_m: float = 0.1
+    color_channels: Literal["intensity", "rgb"] = "intensity"
     semantic_scale_m: float = 0.0
     adam_steps: int = 0
+    adam_lr_scale: float = 0.25
 
     def __post_init__(self) -> None:
         if not self.iterations or any(n < 0 for n in self.iterations) or len(self.iterations) > 6:
@@ -76,7 +81,7 @@ class GaussNewtonSettings:
                 f"tracking.gauss_newton.iterations must be 1 to 6 counts >= 0, got {list(self.iterations)}"
             )
         _positive("tracking.gauss_newton", renders=self.renders, max_distance_m=self.max_distance_m,
-                  huber_m=self.huber_m, min_width=self.min_width)  # fmt: skip
+                  huber_m=self.huber_m, min_width=self.min_width, adam_lr_scale=self.adam_lr_scale)  # fmt: skip
         _non_negative("tracking.gauss_newton", damping=self.damping, color_scale_m=self.color_scale_m,
                       semantic_scale_m=self.semantic_scale_m, adam_steps=self.adam_steps)  # fmt: skip
 

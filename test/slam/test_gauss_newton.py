@@ -75,6 +75,7 @@ def test_every_term_alone_and_the_adam_polish_move_towards_the_truth():
     variants = {
         "depth": GaussNewtonSettings(iterations=(6,), min_width=8, color_scale_m=0.0),
         "colour and semantics": GaussNewtonSettings(iterations=(6,), min_width=8, semantic_scale_m=0.05),
+        "rgb": GaussNewtonSettings(iterations=(6,), min_width=8, color_channels="rgb"),
         "adam polish": GaussNewtonSettings(iterations=(6,), min_width=8, adam_steps=3),
     }
     for name, gn in variants.items():
@@ -96,7 +97,8 @@ def test_the_method_is_a_config_value_with_checked_settings():
     cfg = load_config("tum", overrides=["tracking.method=gauss_newton", "tracking.gauss_newton.renders=2"])
     assert isinstance(build_tracker(cfg.tracking, cfg.render), GaussNewtonTracker)
     for bad in ("tracking.method=lbfgs", "tracking.gauss_newton.renders=0", "tracking.gauss_newton.iterations=[]",
-                "tracking.gauss_newton.color_scale_m=-1"):  # fmt: skip
+                "tracking.gauss_newton.color_scale_m=-1", "tracking.gauss_newton.color_channels=hsv",
+                "tracking.gauss_newton.adam_lr_scale=0"):  # fmt: skip
         with pytest.raises(ConfigError, match="tracking"):
             load_config("tum", overrides=[bad])
 

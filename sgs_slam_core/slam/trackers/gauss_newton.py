@@ -73,7 +73,9 @@ class GaussNewtonTracker:
         w2c = self._solve(fixed, frame, torch.as_tensor(init_w2c, dtype=torch.float64, device=fixed.device), semantic)
         steps = sum(self.icp.steps_for(frame.intrinsics.width)) * self.gn.renders
         if self.gn.adam_steps > 0:
-            adam = replace(self.settings, iterations=self.gn.adam_steps)
+            scale = self.gn.adam_lr_scale
+            adam = replace(self.settings, iterations=self.gn.adam_steps, lr_rotation=self.settings.lr_rotation * scale,
+                           lr_translation=self.settings.lr_translation * scale)  # fmt: skip
             polished = track(gaussians, frame, w2c.cpu().numpy(), adam, self.render_settings, use_semantics,
                              newer_frame_waiting)  # fmt: skip
             return replace(polished, iterations=steps + polished.iterations, time_s=time.perf_counter() - t0,
@@ -112,7 +114,9 @@ class GaussNewtonTracker:
     def _channels(self, rgb: Tensor, semantic: Tensor | None) -> Tensor | None:  # [H, W, 3], [H, W, S] -> [H, W, C]
         """Intensity and semantic features scaled to metres of residual; None when both terms are off."""
         parts = []
-        if self.gn.color_scale_m > 0:
+        if self.gn.color_scale_m > 0 and self.gn.color_channels == "rgb":
+            parts.append(rgb * self.gn.color_scale_m)
+        elif self.gn.color_scale_m > 0:
             luma = torch.tensor(_LUMA, dtype=rgb.dtype, device=rgb.device) * self.gn.color_scale_m
             parts.append((rgb @ luma)[..., None])
         if semantic is not None:
