@@ -160,11 +160,13 @@ def icp_pyramid(depth: Tensor, intrinsics: Intrinsics, levels: int) -> list[IcpL
 
 
 def _blur(image: Tensor) -> Tensor:  # [1, C, H, W] -> [1, C, H, W]
-    """3x3 binomial blur (edges replicated), so a coarse level does not alias the fine one."""
-    c = image.shape[1]
-    taps = torch.tensor([0.25, 0.5, 0.25], dtype=image.dtype, device=image.device)
-    kernel = (taps[:, None] * taps[None, :]).expand(c, 1, 3, 3)
-    return nn_f.conv2d(nn_f.pad(image, (1, 1, 1, 1), mode="replicate"), kernel, groups=c)
+    """3x3 binomial blur (edges replicated), so a coarse level does not alias the fine one.
+
+    Written as shifted sums: on the CPU they take a fraction of a depthwise convolution's time.
+    """
+    x = nn_f.pad(image, (1, 1, 1, 1), mode="replicate")
+    x = (x[..., :-2, :] + 2 * x[..., 1:-1, :] + x[..., 2:, :]) * 0.25
+    return (x[..., :-2] + 2 * x[..., 1:-1] + x[..., 2:]) * 0.25
 
 
 def _erode(mask: Tensor) -> Tensor:  # [1, 1, H, W] float 0/1 -> [1, 1, H, W]

@@ -9,7 +9,6 @@ from __future__ import annotations
 from pathlib import Path
 from types import ModuleType
 
-import torch
 from torch import Tensor
 
 from sgs_slam_core.native import NativeExtension
@@ -30,8 +29,12 @@ def native_terms(
     max_distance_m: float,
     huber_m: float,
 ) -> Tensor:  # [53] float64: normal matrix [49], truncated cost, correspondences, their sum r^2, source points
-    """The kernel's terms at ``src_to_ref`` (CPU tensors)."""
+    """The kernel's terms at ``src_to_ref`` (CPU tensors).
+
+    One thread: a frame's few thousand points take well under a millisecond, and a second OpenMP
+    thread would spin against the live pipeline's other worker.
+    """
     fx, fy, cx, cy, width, height = intrinsics
     empty = points.new_zeros((0, 0))
     return module.gauss_newton_terms(src_to_ref, points, empty if values is None else values, packed, fx, fy, cx, cy,
-                                     width, height, max_distance_m, huber_m, torch.get_num_threads())  # fmt: skip
+                                     width, height, max_distance_m, huber_m, 1)  # fmt: skip

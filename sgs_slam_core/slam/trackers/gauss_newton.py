@@ -101,9 +101,13 @@ class GaussNewtonTracker:
         return w2c
 
     def _reference(self, out: RenderOutput, k: Intrinsics, levels: int, semantic: bool) -> list[IcpLevel]:
-        """The rendering as the alignment's reference: depth normalised by the silhouette where confident."""
+        """The rendering as the alignment's reference, where the silhouette is confident.
+
+        Depth and colour stay unnormalised by the silhouette, as the mapping loss fits them to the
+        measurements (normalising moved the room's poses by millimetres).
+        """
         confident = (out.silhouette > self.settings.sil_threshold) & torch.isfinite(out.depth)
-        depth = torch.where(confident, out.depth / out.silhouette.clamp_min(1e-6), 0.0)
+        depth = torch.where(confident, out.depth, 0.0)
         geometry = icp_pyramid(depth, k, levels)
         channels = self._channels(out.color, out.semantic if semantic else None)
         if channels is None:
