@@ -204,6 +204,10 @@ class KeyframeSettings:
         uncertainty_weighting: weight each window frame's mapping loss by U(t) = exp(-tau (t - t0)),
             t0 the oldest frame of the window (paper; not in the code).
         uncertainty_tau: tau per frame.
+        max_keyframes: keyframes held with their images (None = no cap); past it the view a newer
+            keyframe covers best leaves (``slam.keyframe_store``), so revisits do not add memory.
+        max_megabytes: cap on the host memory of the keyframes' images (MiB; None = no cap).
+        keep_recent: the newest this many keyframes are never evicted (the window's freshest views).
     """
 
     every: int = 5
@@ -216,9 +220,17 @@ class KeyframeSettings:
     semantic_threshold: float = 0.7
     uncertainty_weighting: bool = True
     uncertainty_tau: float = 0.002
+    max_keyframes: int | None = 64
+    max_megabytes: float | None = 512.0
+    keep_recent: int = 4
 
     def __post_init__(self) -> None:
         _positive("keyframes", every=self.every, overlap_samples=self.overlap_samples)
+        _non_negative("keyframes", keep_recent=self.keep_recent)
+        if self.max_keyframes is not None and self.max_keyframes < max(self.keep_recent, 2):
+            raise ConfigError(f"keyframes.max_keyframes must be >= max(keep_recent, 2) or null: {self.max_keyframes}")
+        if self.max_megabytes is not None and not self.max_megabytes > 0:
+            raise ConfigError(f"keyframes.max_megabytes must be > 0 or null, got {self.max_megabytes}")
         if self.window_size < 2:
             raise ConfigError(f"keyframes.window_size must be >= 2, got {self.window_size}")
         if not (0 <= self.geometric_threshold < 1 and 0 < self.semantic_threshold <= 1):

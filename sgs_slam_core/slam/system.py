@@ -31,6 +31,7 @@ from sgs_slam_core.slam.edits import EditLocks
 from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors, resize_arrays
 from sgs_slam_core.slam.guard import TrackingGuard
 from sgs_slam_core.slam.icp_init import IcpInit
+from sgs_slam_core.slam.keyframe_store import KeyframeStore
 from sgs_slam_core.slam.keyframes import Window, is_keyframe, select_window
 from sgs_slam_core.slam.mapper import MapResult, MapStats, WindowFrame, map_window
 from sgs_slam_core.slam.pose import predict_constant_velocity
@@ -138,7 +139,7 @@ class Slam:
         self.edits = EditLocks()
         self.gaussians = GaussianMap.empty(self.codec.num_channels, device=self.device)
         self.intrinsics: Intrinsics | None = None
-        self.keyframes: list[CompactFrame] = []
+        self.keyframes = KeyframeStore(self.config.keyframes)  # capped: the best-covered view leaves
         self.trajectory: list[tuple[int, int, np.ndarray]] = []  # (frame index, stamp_ns, c2w)
         self.scene_radius = 1.0
         self.seen_ids: set[int] = {0}
@@ -277,7 +278,7 @@ class Slam:
         keyframe = is_keyframe(index, self.config.keyframes.every, self.keyframes[-1].index if self.keyframes else None)
         if keyframe:
             stored = Frame(frame.rgb, frame.depth, frame.intrinsics, frame.labels, frame.stamp_ns, None, index)
-            self.keyframes.append(CompactFrame.from_frame(stored, np.linalg.inv(c2w)))
+            self.keyframes.add(CompactFrame.from_frame(stored, np.linalg.inv(c2w)))
         elapsed = time.perf_counter() - t0
         timings["map"] = elapsed
         return MapOutcome(mapping, window, keyframe, added, elapsed, timings)
@@ -325,7 +326,7 @@ class Slam:
             self._resumed_poses = [c2w.copy() for _, _, c2w in saved.trajectory[-2:]]
         # frame indices (keyframe ages) go on from the saved run
         self.frames_processed = saved.frames_processed if saved.frames_processed is not None else len(saved.trajectory)
-        self.keyframes = list(saved.keyframe_images)
+        self.keyframes = KeyframeStore(self.config.keyframes, saved.keyframe_images)
         with_images = {kf.index for kf in saved.keyframe_images}
         self._loaded_keyframe_poses = [(i, p) for i, p in saved.keyframes if i not in with_images]
         self._loaded_trajectory = list(saved.trajectory)
@@ -505,5 +506,5 @@ class Slam:
         return render(self.gaussians, k, w2c, self.config.render, with_semantics=with_semantics)
 
     def keyframe_poses(self) -> list[tuple[int, np.ndarray]]:
-        """(frame index, c2w) of every keyframe."""
-        return [(kf.index, np.linalg.inv(kf.w2c)) for kf in self.keyframes]
+        """(frame index, c2w) of every keyframe, those the store has let go included."""
+        return self.keyframes.poses()
