@@ -169,6 +169,9 @@ class DensifySettings:
             (SplaTAM-S uses 0.5); radii grow accordingly.
         initial_opacity: opacity of new Gaussians.
         max_new_per_frame: cap on Gaussians added per frame (random subset; None = no cap).
+        min_spacing: Gaussian budget: a pixel adds no Gaussian when the map already holds one within
+            its cell, ``min_spacing`` times the pixel's footprint (rounded up to a power of two);
+            revisits then add only where the map has nothing (None = off, one per unexplained pixel).
     """
 
     sil_threshold: float = 0.5
@@ -176,6 +179,7 @@ class DensifySettings:
     resolution_scale: float = 1.0
     initial_opacity: float = 0.5
     max_new_per_frame: int | None = None
+    min_spacing: float | None = None
 
     def __post_init__(self) -> None:
         if not 0 < self.resolution_scale <= 1:
@@ -185,6 +189,8 @@ class DensifySettings:
         _positive("densify", depth_error_factor=self.depth_error_factor)
         if self.max_new_per_frame is not None and self.max_new_per_frame < 1:
             raise ConfigError("densify.max_new_per_frame must be >= 1 or null")
+        if self.min_spacing is not None and not self.min_spacing > 0:
+            raise ConfigError(f"densify.min_spacing must be > 0 or null, got {self.min_spacing}")
 
 
 @dataclass(frozen=True)

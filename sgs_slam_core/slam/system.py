@@ -438,7 +438,7 @@ class Slam:
             mask = torch.nn.functional.interpolate(mask[None, None].float(), size=k.shape, mode="nearest")[0, 0] > 0.5
             mask &= source.valid
         new = gaussians_from_pixels(source, c2w_t, mask, self.codec.num_channels, self.config.densify,
-                                    generator=self.torch_rng)  # fmt: skip
+                                    generator=self.torch_rng, existing=self.gaussians)  # fmt: skip
         self._set_gaussians(self.gaussians.cat(new))
         return len(new)
 

@@ -1,9 +1,10 @@
-"""The keyframe store: compact labels, the caps, and which keyframe leaves when it is full."""
+"""The memory budget: the keyframe store (compact labels, caps, which keyframe leaves) and Gaussian spacing."""
 
 import dataclasses
 
 import numpy as np
 import pytest
+import torch
 
 from sgs_slam_core.config import load_config
 from sgs_slam_core.datasets import open_dataset
@@ -12,7 +13,7 @@ from sgs_slam_core.geometry import Intrinsics
 from sgs_slam_core.mapio import load_map, save_map
 from sgs_slam_core.slam.frame_data import CompactFrame, compact_labels
 from sgs_slam_core.slam.keyframe_store import KeyframeStore, view_points
-from sgs_slam_core.slam.settings import KeyframeSettings
+from sgs_slam_core.slam.settings import DensifySettings, KeyframeSettings
 from sgs_slam_core.slam.system import Slam
 
 from ..conftest import FAST_SLAM
@@ -105,3 +106,27 @@ def test_slam_holds_the_capped_store_and_saves_every_pose(tiny_scene, tmp_path):
     again.load_map(loaded)
     assert [kf.index for kf in again.keyframes] == [kf.index for kf in slam.keyframes]
     assert [i for i, _ in again.to_map_file().keyframes] == [0, 4, 9]
+
+
+def test_spacing_keeps_one_gaussian_per_cell_and_none_where_the_map_has_one():
+    from sgs_slam_core.gaussians import GaussianMap
+    from sgs_slam_core.slam.densify import spaced
+
+    points = torch.tensor(
+        [[5e-4, 5e-4, 1.0005], [1.5e-3, 5e-4, 1.0005], [0.5005, 5e-4, 1.0005], [0.5005, 5e-4, 2.0005]]
+    )
+    radii = torch.tensor([0.002, 0.002, 0.002, 0.004])  # cells: 2 mm, 2 mm, 2 mm, 4 mm at spacing 1
+    assert spaced(points, radii, None, 1.0).tolist() == [True, False, True, True]
+    one = GaussianMap.empty(3)
+    z = torch.zeros(1, dtype=torch.long)
+    existing = GaussianMap(torch.tensor([[0.5015, 5e-4, 1.0005]]), torch.zeros(1, 1), torch.zeros(1),
+                           torch.zeros(1, 3), torch.zeros(1, 3), z, z)  # fmt: skip
+    assert spaced(points, radii, existing, 1.0).tolist() == [True, False, False, True]
+    assert spaced(points, radii, one, 1.0).tolist() == [True, False, True, True]
+    assert spaced(points, radii, existing, 1e-3).tolist() == [True, True, True, True]  # 1 mm cells
+    assert not spaced(points, radii, existing, 2000.0).any()  # 4 m and 8 m cells: all share the existing one's
+
+
+def test_spacing_is_validated():
+    with pytest.raises(ConfigError):
+        DensifySettings(min_spacing=0.0)
