@@ -54,7 +54,8 @@ class Sample:
     keyframes: int
     keyframe_mb: float
     evicted: int
-    s_per_frame: float  # mean Slam.process time over the frames since the last sample
+    s_per_frame: float  # mean Slam.process wall time over the frames since the last sample
+    cpu_s_per_frame: float  # the same in CPU time of this process (all threads): steadier on a shared machine
 
 
 @dataclass(frozen=True)
@@ -69,6 +70,7 @@ class LoopRow:
     keyframes: float
     keyframe_mb: float
     s_per_frame: float
+    cpu_s_per_frame: float
     ate_cm: float
 
 
@@ -92,12 +94,13 @@ def run(dataset: Dataset, config: SlamConfig, count: int, every: int) -> tuple[l
     """Process ``count`` frames going back and forth; samples, estimated and true c2w [count, 4, 4]."""
     slam = Slam(config, dataset.label_table)
     slam.prepare(lambda line: print(line, flush=True))
-    est, gt, samples, spent = [], [], [], 0.0
+    est, gt, samples, spent, cpu = [], [], [], 0.0, 0.0
     for i, pos in enumerate(order(len(dataset), count)):
         frame = replace(dataset[pos], stamp_ns=10**9 + i * 33_333_333)  # 30 Hz stamps, always increasing
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         step = slam.process(frame)
         spent += time.perf_counter() - t0
+        cpu += time.process_time() - c0
         est.append(step.c2w)
         gt.append(frame.gt_c2w)
         if (i + 1) % every == 0 or i + 1 == count:
@@ -105,12 +108,12 @@ def run(dataset: Dataset, config: SlamConfig, count: int, every: int) -> tuple[l
             done = (i + 1) - (samples[-1].frames if samples else 0)
             mb = 2**20
             samples.append(Sample(i + 1, rss_mb(), peak_rss_mb(), fp.gaussians, fp.gaussian_bytes / mb, fp.keyframes,
-                                  fp.keyframe_bytes / mb, fp.keyframes_evicted, spent / done))  # fmt: skip
-            spent = 0.0
+                                  fp.keyframe_bytes / mb, fp.keyframes_evicted, spent / done, cpu / done))  # fmt: skip
+            spent = cpu = 0.0
             s = samples[-1]
             print(f"{s.frames:6d} frames  {s.rss_mb:7.0f} MB (peak {s.peak_rss_mb:.0f})  {s.gaussians:8,d} G "
                   f"({s.gaussian_mb:.0f} MB)  {s.keyframes:4d} kf ({s.keyframe_mb:.0f} MB, {s.evicted} evicted)  "
-                  f"{s.s_per_frame:.2f} s/frame", flush=True)  # fmt: skip
+                  f"{s.s_per_frame:.2f} s/frame ({s.cpu_s_per_frame:.2f} CPU s)", flush=True)  # fmt: skip
     return samples, np.stack(est), np.stack(gt)
 
 
@@ -127,6 +130,7 @@ def per_loop(samples: list[Sample], est: np.ndarray, gt: np.ndarray, period: int
                             float(np.mean([s.keyframes for s in inside])),
                             float(np.mean([s.keyframe_mb for s in inside])),
                             float(np.mean([s.s_per_frame for s in inside])),
+                            float(np.mean([s.cpu_s_per_frame for s in inside])),
                             100 * ate(est[lo:hi], gt[lo:hi]).rmse))  # fmt: skip
     return rows
 
@@ -150,7 +154,8 @@ def plot(samples: list[Sample], path: Path, title: str) -> None:
         line_panel([Series("Gaussians / 1000", np.array([s.gaussians / 1e3 for s in samples]), (40, 140, 40)),
                     Series("keyframes held", np.array([s.keyframes for s in samples], float), (30, 30, 200))],
                    "map size", "count", x_label="frames", x_step=x),
-        line_panel([Series("time per frame", np.array([s.s_per_frame for s in samples]), (120, 40, 160))],
+        line_panel([Series("wall", np.array([s.s_per_frame for s in samples]), (120, 40, 160)),
+                    Series("CPU (all threads)", np.array([s.cpu_s_per_frame for s in samples]), (0, 140, 220))],
                    "Slam.process", "s", x_label="frames", x_step=x),
     ]  # fmt: skip
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -160,12 +165,14 @@ def plot(samples: list[Sample], path: Path, title: str) -> None:
 def report(rows: list[LoopRow], samples: list[Sample], plot_path: Path, what: str) -> str:
     """Markdown: what ran, the drift from loop 2 on, the plot and the per-loop table."""
     table = markdown_table(
-        ["loop", "frames", "RSS MB", "peak RSS MB", "Gaussians", "keyframes", "keyframe MB", "s/frame", "ATE cm"],
+        ["loop", "frames", "RSS MB", "peak RSS MB", "Gaussians", "keyframes", "keyframe MB", "s/frame", "CPU s/frame",
+         "ATE cm"],
         [[r.loop, r.frames, f"{r.rss_mb:.0f}", f"{r.peak_rss_mb:.0f}", f"{r.gaussians:,.0f}", f"{r.keyframes:.0f}",
-          f"{r.keyframe_mb:.0f}", f"{r.s_per_frame:.2f}", f"{r.ate_cm:.2f}"] for r in rows],
+          f"{r.keyframe_mb:.1f}", f"{r.s_per_frame:.2f}", f"{r.cpu_s_per_frame:.2f}", f"{r.ate_cm:.2f}"] for r in rows],
     )  # fmt: skip
     drifts = ", ".join(f"{name} {100 * drift(rows, f):.1f} %" for name, f in
-                       (("RSS", "rss_mb"), ("Gaussians", "gaussians"), ("time per frame", "s_per_frame")))  # fmt: skip
+                       (("RSS", "rss_mb"), ("Gaussians", "gaussians"), ("keyframe MB", "keyframe_mb"),
+                        ("wall time per frame", "s_per_frame"), ("CPU time per frame", "cpu_s_per_frame")))  # fmt: skip
     return (f"{what} Peak resident memory {max(s.peak_rss_mb for s in samples):.0f} MB. Largest change of a loop's "
             f"mean from loop 2 on (against loop 2): {drifts}.\n\n![long run]({plot_path.relative_to(REPO)})\n\n"
             f"{table}\n")  # fmt: skip
@@ -183,6 +190,7 @@ def main() -> int:
     p.add_argument("--mapping-iterations", type=int, help="reduced for time (the report says so)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config overrides")
     p.add_argument("--every", type=int, default=10, help="sample every N frames")
+    p.add_argument("--tag", default="", help="appended to the result files' names")
     p.add_argument("--no-append", action="store_true", help="print only; leave BENCHMARKS.md alone")
     args = p.parse_args()
     overrides = ["device=cpu", *args.set]
@@ -199,7 +207,7 @@ def main() -> int:
         samples, est, gt = run(open_dataset(scene), config, args.frames, args.every)
     period = 2 * (args.loop_frames - 1)
     rows = per_loop(samples, est, gt, period)
-    name = f"longrun_{size}_{args.frames}"
+    name = f"longrun_{size}_{args.frames}{'_' + args.tag if args.tag else ''}"
     plot_path = RESULTS / f"{name}.png"
     plot(samples, plot_path, f"room orbit {size}")
     (RESULTS / f"{name}.json").write_text(json.dumps({"commit": commit(), "overrides": overrides,
