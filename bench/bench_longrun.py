@@ -91,18 +91,27 @@ def order(loop_frames: int, count: int) -> list[int]:
 
 
 def run(dataset: Dataset, config: SlamConfig, count: int, every: int) -> tuple[list[Sample], np.ndarray, np.ndarray]:
-    """Process ``count`` frames going back and forth; samples, estimated and true c2w [count, 4, 4]."""
+    """Process ``count`` frames going back and forth (Ctrl-C ends early); samples, estimated and true c2w [T, 4, 4]."""
     slam = Slam(config, dataset.label_table)
     slam.prepare(lambda line: print(line, flush=True))
-    est, gt, samples, spent, cpu = [], [], [], 0.0, 0.0
+    est, gt, samples = [], [], []
+    try:
+        _loop(slam, dataset, count, every, est, gt, samples)
+    except KeyboardInterrupt:  # a long run stopped early still reports what it measured
+        print(f"stopped after {len(est)} frames", flush=True)
+    return samples, np.stack(est[: len(gt)]), np.stack(gt[: len(est)])
+
+
+def _loop(slam: Slam, dataset: Dataset, count: int, every: int, est: list, gt: list, samples: list[Sample]) -> None:
+    spent = cpu = 0.0
     for i, pos in enumerate(order(len(dataset), count)):
         frame = replace(dataset[pos], stamp_ns=10**9 + i * 33_333_333)  # 30 Hz stamps, always increasing
         t0, c0 = time.perf_counter(), time.process_time()
         step = slam.process(frame)
         spent += time.perf_counter() - t0
         cpu += time.process_time() - c0
-        est.append(step.c2w)
         gt.append(frame.gt_c2w)
+        est.append(step.c2w)
         if (i + 1) % every == 0 or i + 1 == count:
             fp = footprint(slam)
             done = (i + 1) - (samples[-1].frames if samples else 0)
@@ -114,7 +123,6 @@ def run(dataset: Dataset, config: SlamConfig, count: int, every: int) -> tuple[l
             print(f"{s.frames:6d} frames  {s.rss_mb:7.0f} MB (peak {s.peak_rss_mb:.0f})  {s.gaussians:8,d} G "
                   f"({s.gaussian_mb:.0f} MB)  {s.keyframes:4d} kf ({s.keyframe_mb:.0f} MB, {s.evicted} evicted)  "
                   f"{s.s_per_frame:.2f} s/frame ({s.cpu_s_per_frame:.2f} CPU s)", flush=True)  # fmt: skip
-    return samples, np.stack(est), np.stack(gt)
 
 
 def per_loop(samples: list[Sample], est: np.ndarray, gt: np.ndarray, period: int) -> list[LoopRow]:
