@@ -14,7 +14,7 @@ from sgs_slam_core.render.api import RenderOutput
 from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.settings import DensifySettings
 
-__all__ = ["densify_mask", "gaussians_from_pixels", "spaced"]
+__all__ = ["densify_mask", "gaussians_from_pixels", "over_budget", "spaced"]
 
 _CELL_BASE_M = 1e-3  # spacing cells are this times a power of two (m)
 
@@ -118,6 +118,26 @@ def spaced(
             free &= ~torch.isin(keys, _cell_keys(means, cell))
         keep[at] = free
     return keep
+
+
+def over_budget(
+    gaussians: GaussianMap, incoming: int, max_gaussians: int, locked: frozenset[int] = frozenset()
+) -> Tensor:  # [N] bool, True = remove
+    """The least opaque Gaussians to drop so that the map plus ``incoming`` new ones holds ``max_gaussians``.
+
+    Gaussians of ``locked`` classes (edits) are never dropped, so the cap yields to them.
+    """
+    remove = torch.zeros(len(gaussians), dtype=torch.bool, device=gaussians.device)
+    excess = len(gaussians) + incoming - max_gaussians
+    if excess <= 0:
+        return remove
+    opacity = gaussians.logit_opacities.detach()
+    if locked:
+        ids = torch.tensor(sorted(locked), dtype=torch.long, device=gaussians.device)
+        opacity = torch.where(torch.isin(gaussians.labels, ids), torch.inf, opacity)
+    excess = min(excess, int(torch.isfinite(opacity).sum()))
+    remove[torch.topk(opacity, excess, largest=False).indices] = True
+    return remove
 
 
 def scene_radius(first_depth: np.ndarray, depth_ratio: float) -> float:

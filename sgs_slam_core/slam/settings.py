@@ -172,6 +172,8 @@ class DensifySettings:
         min_spacing: Gaussian budget: a pixel adds no Gaussian when the map already holds one within
             its cell, ``min_spacing`` times the pixel's footprint (rounded up to a power of two);
             revisits then add only where the map has nothing (None = off, one per unexplained pixel).
+        max_gaussians: hard cap on the map: before new Gaussians join, the least opaque leave so
+            that the count stays at most this (None = no cap; classes locked by edits never leave).
     """
 
     sil_threshold: float = 0.5
@@ -180,6 +182,7 @@ class DensifySettings:
     initial_opacity: float = 0.5
     max_new_per_frame: int | None = None
     min_spacing: float | None = None
+    max_gaussians: int | None = None
 
     def __post_init__(self) -> None:
         if not 0 < self.resolution_scale <= 1:
@@ -191,6 +194,8 @@ class DensifySettings:
             raise ConfigError("densify.max_new_per_frame must be >= 1 or null")
         if self.min_spacing is not None and not self.min_spacing > 0:
             raise ConfigError(f"densify.min_spacing must be > 0 or null, got {self.min_spacing}")
+        if self.max_gaussians is not None and self.max_gaussians < 1:
+            raise ConfigError(f"densify.max_gaussians must be >= 1 or null, got {self.max_gaussians}")
 
 
 @dataclass(frozen=True)

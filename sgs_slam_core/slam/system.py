@@ -26,7 +26,7 @@ from sgs_slam_core.render import cpu_backend
 from sgs_slam_core.render.api import RenderOutput, render
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam import photometric
-from sgs_slam_core.slam.densify import densify_mask, gaussians_from_pixels, scene_radius
+from sgs_slam_core.slam.densify import densify_mask, gaussians_from_pixels, over_budget, scene_radius
 from sgs_slam_core.slam.edits import EditLocks
 from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors, resize_arrays
 from sgs_slam_core.slam.guard import TrackingGuard
@@ -439,7 +439,10 @@ class Slam:
             mask &= source.valid
         new = gaussians_from_pixels(source, c2w_t, mask, self.codec.num_channels, self.config.densify,
                                     generator=self.torch_rng, existing=self.gaussians)  # fmt: skip
-        self._set_gaussians(self.gaussians.cat(new))
+        kept, cap = self.gaussians, self.config.densify.max_gaussians
+        if cap is not None:  # the Gaussian budget: the least opaque make room
+            kept = kept.prune(over_budget(kept, len(new), cap, self.locked_labels))
+        self._set_gaussians(kept.cat(new))
         return len(new)
 
     def _select_window(self, data: FrameTensors, c2w: np.ndarray, labels: np.ndarray | None, index: int) -> Window:

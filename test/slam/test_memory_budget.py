@@ -130,3 +130,29 @@ def test_spacing_keeps_one_gaussian_per_cell_and_none_where_the_map_has_one():
 def test_spacing_is_validated():
     with pytest.raises(ConfigError):
         DensifySettings(min_spacing=0.0)
+
+
+def test_over_budget_drops_the_least_opaque_and_never_a_locked_class():
+    from sgs_slam_core.gaussians import GaussianMap
+    from sgs_slam_core.slam.densify import over_budget
+
+    n = 5
+    logits = torch.tensor([0.0, -3.0, 2.0, -5.0, 1.0])
+    labels = torch.tensor([1, 1, 2, 7, 2])
+    g = GaussianMap(torch.zeros(n, 3), torch.zeros(n, 1), logits, torch.zeros(n, 3), torch.zeros(n, 3), labels,
+                    torch.zeros(n, dtype=torch.long))  # fmt: skip
+    assert not over_budget(g, 1, 6).any()
+    assert over_budget(g, 2, 4).tolist() == [True, True, False, True, False]
+    assert over_budget(g, 2, 4, frozenset({7})).tolist() == [True, True, False, False, True]
+    assert over_budget(g, 9, 4, frozenset({2})).tolist() == [True, True, False, True, False]  # the cap yields
+
+
+def test_slam_keeps_the_map_under_its_gaussian_cap(tiny_scene):
+    data = open_dataset(tiny_scene)
+    slam = Slam(load_config("synthetic", overrides=[*FAST_SLAM, "densify.max_gaussians=1500"]), data.label_table)
+    for i in range(len(data)):
+        step = slam.process(data[i])
+        assert step.num_gaussians <= max(1500, step.added)  # mapping only prunes
+    assert slam.num_gaussians > 1000
+    with pytest.raises(ConfigError):
+        DensifySettings(max_gaussians=0)
