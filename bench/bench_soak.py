@@ -1,13 +1,14 @@
 """Soak benchmark: slam_node (live mode) fed a long synthetic stream; resident memory over time.
 
-The tiny synthetic scene (64x48, 12 frames) is played back and forth at ``--rate-hz`` with
-increasing stamps, so after the first pass every view has been seen and the map stops growing:
-from then on memory must stay flat. slam_node runs in this process (as in the ROS tests) with
+The tiny synthetic scene (64x48, 12 frames), or with ``--width``/``--height`` the room's orbit
+(``--loop-frames`` frames), is played back and forth at ``--rate-hz`` with increasing stamps, so
+after the first pass every view has been seen and the map stops growing: from then on memory must
+stay flat. slam_node runs in this process (as in the ROS tests) with
 its normal outputs on; every ``--every`` frames the resident set size, the Gaussian count, the
 frames tracked, the keyframes held and the drops are sampled. Writes a plot (memory and map size
 over frames) and a table, and appends both to BENCHMARKS.md.
 
-    python bench/bench_soak.py [--frames 10000] [--rate-hz 100] [--no-append]
+    python bench/bench_soak.py [--frames 10000] [--rate-hz 100] [--width 320 --height 240] [--no-append]
 """
 
 from __future__ import annotations
@@ -28,10 +29,11 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 from bench.common import REPO, append_section, markdown_table
 from bench.plot import Series, line_panel, save_panels
 from sgs_slam_core.frame import Frame
-from sgs_slam_core.synthetic import generate, preset_config
+from sgs_slam_core.slam.footprint import footprint
+from sgs_slam_core.synthetic import SynthConfig, generate, preset_config
 from test.ros.helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames, wait_for
 
-PLOT = REPO / "bench" / "results" / "soak_slam_node_64x48.png"
+RESULTS = REPO / "bench" / "results"
 
 
 @dataclass(frozen=True)
@@ -44,6 +46,7 @@ class Sample:
     gaussians: int
     tracked: int
     keyframes: int
+    keyframe_mb: float  # host bytes of the keyframes' images held
     drops: int
     errors: int
 
@@ -81,8 +84,9 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
         def sample(published: int) -> None:
             st, slam, a = tracking.pipeline.stats, tracking.pipeline.slam, tracking.assembler
             drops = st.dropped_frames + a.colour_dropped + a.frames_rejected  # as /diagnostics counts them
-            samples.append(Sample(published, time.monotonic() - start, rss_mb(), slam.num_gaussians, st.tracked,
-                                  len(slam.keyframes), drops, st.errors))  # fmt: skip
+            held = footprint(slam)
+            samples.append(Sample(published, time.monotonic() - start, rss_mb(), held.gaussians, st.tracked,
+                                  held.keyframes, held.keyframe_bytes / 2**20, drops, st.errors))  # fmt: skip
             print(f"{published:6d} frames  {samples[-1].rss_mb:7.1f} MB  {slam.num_gaussians:6d} G  "
                   f"{st.tracked:5d} tracked  {len(slam.keyframes):4d} keyframes", flush=True)  # fmt: skip
 
@@ -100,7 +104,7 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
     return samples
 
 
-def report(samples: list[Sample], count: int, rate_hz: float, iterations: int) -> str:
+def report(samples: list[Sample], count: int, rate_hz: float, iterations: int, size: str, loop: int) -> str:
     """Markdown: the plot, a table every 10 % of the stream, and the growth after the first tenth."""
     every = samples[1].frames - samples[0].frames
     panels = [
@@ -111,23 +115,26 @@ def report(samples: list[Sample], count: int, rate_hz: float, iterations: int) -
                     Series("frames tracked / 100", np.array([s.tracked / 100 for s in samples]), (150, 150, 150))],
                    "map size", "thousands of Gaussians", x_label="frames published", x_step=every),
     ]  # fmt: skip
-    PLOT.parent.mkdir(parents=True, exist_ok=True)
-    save_panels(PLOT, panels)
+    plot = RESULTS / f"soak_slam_node_{size}.png"
+    plot.parent.mkdir(parents=True, exist_ok=True)
+    save_panels(plot, panels)
     picked = sorted({*range(0, len(samples), max(1, len(samples) // 10)), len(samples) - 1})
     rows = [[f"{s.frames:,}", f"{s.elapsed_s:.0f}", f"{s.rss_mb:.0f}", f"{s.gaussians:,}", f"{s.tracked:,}",
-             s.keyframes, f"{s.drops:,}", s.errors] for s in (samples[i] for i in picked)]  # fmt: skip
+             s.keyframes, f"{s.keyframe_mb:.1f}", f"{s.drops:,}", s.errors]
+            for s in (samples[i] for i in picked)]  # fmt: skip
     tenth = samples[max(1, len(samples) // 10)]
     last = samples[-1]
     per_k = (last.rss_mb - tenth.rss_mb) / max((last.frames - tenth.frames) / 1000, 1e-9)
-    table = markdown_table(["frames published", "s", "RSS MB", "Gaussians", "tracked", "keyframes", "drops",
-                            "errors"], rows)  # fmt: skip
+    table = markdown_table(["frames published", "s", "RSS MB", "Gaussians", "tracked", "keyframes", "keyframe MB",
+                            "drops", "errors"], rows)  # fmt: skip
     return (
-        f"slam_node in live mode (best-effort input, outputs on) fed {count:,} frames of the tiny synthetic scene "
-        f"(64x48, back and forth) at {rate_hz:g} Hz; tracking and mapping {iterations} iterations. Peak resident "
-        f"memory {max(s.rss_mb for s in samples):.0f} MB; from {tenth.frames:,} to {last.frames:,} frames it went "
+        f"slam_node in live mode (best-effort input, outputs on) fed {count:,} frames of a synthetic scene "
+        f"({size}, {loop} frames back and forth) at {rate_hz:g} Hz; tracking and mapping {iterations} iterations. "
+        f"Peak resident memory {max(s.rss_mb for s in samples):.0f} MB; from {tenth.frames:,} to {last.frames:,} "
+        f"frames it went "
         f"{tenth.rss_mb:.0f} -> {last.rss_mb:.0f} MB ({per_k:+.2f} MB per 1,000 frames) while the map held "
         f"{tenth.gaussians:,} -> {last.gaussians:,} Gaussians and {tenth.keyframes} -> {last.keyframes} keyframes.\n\n"
-        f"![soak]({PLOT.relative_to(REPO)})\n\n{table}\n"
+        f"![soak]({plot.relative_to(REPO)})\n\n{table}\n"
     )
 
 
@@ -138,15 +145,21 @@ def main() -> int:
     parser.add_argument("--rate-hz", type=float, default=100.0)
     parser.add_argument("--every", type=int, default=50, help="sample every N frames")
     parser.add_argument("--iterations", type=int, default=5, help="tracking and mapping iterations")
+    parser.add_argument("--width", type=int, help="play the room's orbit at this size instead of the tiny scene")
+    parser.add_argument("--height", type=int)
+    parser.add_argument("--loop-frames", type=int, default=120, help="orbit frames (with --width/--height)")
     parser.add_argument("--no-append", action="store_true", help="print only; leave BENCHMARKS.md alone")
     args = parser.parse_args()
+    height = args.height or (args.width or 0) * 3 // 4
+    synth = preset_config("tiny") if args.width is None else SynthConfig(args.width, height, args.loop_frames)
+    size = f"{synth.width}x{synth.height}"
     with tempfile.TemporaryDirectory() as tmp:
-        scene = generate(Path(tmp) / "tiny", preset_config("tiny"))
+        scene = generate(Path(tmp) / "scene", synth)
         samples = soak(scene, args.frames, args.rate_hz, args.every, args.iterations)
-    body = report(samples, args.frames, args.rate_hz, args.iterations)
+    body = report(samples, args.frames, args.rate_hz, args.iterations, size, synth.frames)
     print(body)
     if not args.no_append:
-        append_section(f"Soak: slam_node, {args.frames:,} frames (64x48)", body)
+        append_section(f"Soak: slam_node, {args.frames:,} frames ({size})", body)
     return 0
 
 

@@ -34,6 +34,7 @@ from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.live import MapJob, SlamPipeline
 from sgs_slam_core.mapio import load_map, save_map
+from sgs_slam_core.slam.footprint import footprint
 from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
 from sgs_slam_ros.camera_inputs import CameraInputs
 from sgs_slam_ros.diagnostics import OK, WARN, Diagnostics, RateMeter
@@ -307,8 +308,7 @@ class MappingNode(Node):
             "processing_rate_hz": f"{self.mapped_rate.rate():.2f}",
             "frames_mapped": str(st.mapped),
             "jobs_dropped": str(st.dropped_jobs),
-            "gaussians": str(self.pipeline.slam.num_gaussians),
-            "keyframes": str(len(self.pipeline.slam.keyframes)),
+            **footprint(self.pipeline.slam).as_strings(),  # Gaussians, keyframes held, and their bytes
             "tracking_failures": str(st.tracking_failures),
             "locked_classes": " ".join(str(i) for i in sorted(self.pipeline.slam.locked_labels)) or "none",
             "undoable_edits": str(self.pipeline.slam.edits.depth),

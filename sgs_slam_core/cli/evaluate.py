@@ -20,7 +20,8 @@ from sgs_slam_core.semantics import SemanticCodec
 __all__ = ["add_parser", "run"]
 
 _KEEP = ("fps", "track_ms_per_frame", "map_ms_per_frame", "load_ms_per_frame", "peak_memory_mb",
-         "tracking_failures", "bad_frames", "keyframes", "device", "render_backend")  # fmt: skip
+         "tracking_failures", "bad_frames", "keyframes", "keyframe_mb", "keyframes_evicted", "gaussian_mb", "device",
+         "render_backend")  # fmt: skip
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

@@ -2,8 +2,9 @@
 
 Contents (a ``torch.save`` dict, loadable with ``weights_only=True``): format tag and version, the
 Gaussian tensors, the label table, the resolved config, the intrinsics, the keyframe poses, the
-estimated trajectory, and optionally the images of the most recent keyframes (uint8 colour, uint16
-depth, int32 labels: about 2.8 MB per 640x480 keyframe) so that mapping resumes with its window.
+estimated trajectory, and optionally the images of the most recent keyframes the store holds (uint8
+colour, uint16 depth, labels in the smallest type that holds them: 1.8 MB per 640x480 keyframe with
+uint8 labels) so that mapping resumes with its window.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from sgs_slam_core.fileio import atomic_write
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelError, LabelTable
-from sgs_slam_core.slam.frame_data import CompactFrame
+from sgs_slam_core.slam.frame_data import CompactFrame, compact_labels
 from sgs_slam_core.validate import as_float, as_int
 
 __all__ = ["FORMAT", "VERSION", "MapFile", "load_map", "save_map"]
@@ -79,6 +80,9 @@ def _keyframe_from_dict(d: dict[str, Any], k: Intrinsics | None) -> CompactFrame
         raise ValueError(f"keyframe {d['index']} images do not match the intrinsics ({k.width}x{k.height})")
     if rgb.dtype != np.uint8 or depth.dtype != np.uint16:
         raise ValueError(f"keyframe {d['index']} images must be uint8 colour and uint16 depth")
+    if labels is not None and labels.dtype not in (np.uint8, np.uint16, np.int32):
+        raise ValueError(f"keyframe {d['index']} labels must be uint8, uint16 or int32, got {labels.dtype}")
+    labels = None if labels is None else compact_labels(labels)  # files before the store kept int32
     return CompactFrame(int(d["index"]), int(d["stamp_ns"]), k, rgb, depth, labels, d["w2c"].numpy())
 
 

@@ -39,6 +39,7 @@ from sgs_slam_core.runner.report import write_metrics
 from sgs_slam_core.runner.run_info import write_run_info
 from sgs_slam_core.runner.run_record import GROUND_TRUTH_FILE, environment, write_ground_truth
 from sgs_slam_core.runner.safety import RunInterrupted, StopRequest
+from sgs_slam_core.slam.footprint import footprint
 from sgs_slam_core.slam.system import Slam, StepResult
 from sgs_slam_core.viz.viewer import Viewer
 
@@ -186,11 +187,10 @@ def _stats(slam: Slam, loop: _Loop, config: SlamConfig) -> dict[str, Any]:
     return {
         "frames": len(loop.frame_indices),
         **_timing(loop),
-        "num_gaussians": slam.num_gaussians,
+        **footprint(slam).as_metrics(),  # Gaussians and keyframes held, and their bytes
         "peak_memory_mb": _peak_memory_mb(slam.device),
         "tracking_failures": slam.failures,
         "bad_frames": loop.bad_frames,
-        "keyframes": len(slam.keyframes),
         "device": str(slam.device),
         "render_backend": resolve_backend(config.render.backend, slam.device),
     }

@@ -2,7 +2,7 @@
 
 :class:`ProgressBar` is the generic bar (conversion, synthesis). :class:`SlamProgress` follows a
 SLAM run frame by frame and shows the live ATE (when the dataset has ground truth), the Gaussian
-count and the tracking failures beside the bar.
+count, the keyframes held (and the bytes of each) and the tracking failures beside the bar.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import numpy as np
 from tqdm import tqdm
 
 from sgs_slam_core.metrics.trajectory import ate
+from sgs_slam_core.slam.footprint import footprint
 
 if TYPE_CHECKING:
     from sgs_slam_core.frame import Frame
@@ -76,7 +77,7 @@ class ProgressBar:
         """The current state as one line (tqdm's format: percentage, bar, count, elapsed<ETA, rate)."""
         elapsed = (now or time.perf_counter()) - self.start
         return tqdm.format_meter(
-            self.done, self.total, elapsed, ncols=120, prefix=self.label, unit=self.unit, postfix=extra or None
+            self.done, self.total, elapsed, ncols=160, prefix=self.label, unit=self.unit, postfix=extra or None
         )
 
     def close(self) -> None:
@@ -120,7 +121,7 @@ class SlamProgress:
             if len(self._gt) >= 3 and due:
                 self._ate_cm = 100 * ate(np.stack(self._est), np.stack(self._gt)).rmse
         parts = [f"ATE {self._ate_cm:.2f} cm"] if self._ate_cm is not None else []
-        parts.append(f"{slam.num_gaussians:,} Gaussians")
+        parts.append(footprint(slam).summary())
         if slam.failures:
             parts.append(f"{slam.failures} tracking failures")
         self.bar.update(min(max(frame.index + 1, self.frames), self.bar.total), ", ".join(parts))  # dataset position

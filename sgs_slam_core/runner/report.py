@@ -35,6 +35,9 @@ METRIC_ROWS: tuple[tuple[str, str, float, str], ...] = (
     ("track_ms_per_frame", "tracking (ms/frame)", 1, "{:.0f}"),
     ("map_ms_per_frame", "mapping (ms/frame)", 1, "{:.0f}"),
     ("num_gaussians", "Gaussians", 1, "{:,.0f}"),
+    ("gaussian_mb", "Gaussian tensors (MB)", 1, "{:.1f}"),
+    ("keyframes", "keyframes held", 1, "{:.0f}"),
+    ("keyframe_mb", "keyframe images held (MB)", 1, "{:.1f}"),
     ("peak_memory_mb", "peak memory (MB)", 1, "{:.0f}"),
     ("tracking_failures", "tracking failures", 1, "{:.0f}"),
 )

@@ -14,7 +14,9 @@ from sgs_slam_core.render.api import RenderOutput
 from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.settings import DensifySettings
 
-__all__ = ["densify_mask", "gaussians_from_pixels"]
+__all__ = ["densify_mask", "gaussians_from_pixels", "over_budget", "spaced"]
+
+_CELL_BASE_M = 1e-3  # spacing cells are this times a power of two (m)
 
 
 def densify_mask(out: RenderOutput, frame: FrameTensors, s: DensifySettings) -> Tensor:  # [H, W] bool
@@ -38,16 +40,21 @@ def gaussians_from_pixels(
     settings: DensifySettings,
     anisotropic: bool = False,
     generator: torch.Generator | None = None,
+    existing: GaussianMap | None = None,
 ) -> GaussianMap:
     """One Gaussian per masked pixel, initialised from that pixel.
 
     Centre back-projected with ``c2w``, radius = depth / mean focal length (one pixel's footprint),
-    colour, semantic target and class id from the pixel.
+    colour, semantic target and class id from the pixel. With ``settings.min_spacing`` a pixel
+    whose spacing cell already holds a Gaussian of ``existing`` (or an earlier pixel) adds none.
     """
     k = frame.intrinsics
     depth = torch.where(mask, frame.depth, torch.zeros_like(frame.depth))
     points, valid = backproject(depth, k, c2w)
     idx = torch.nonzero(valid.reshape(-1)).squeeze(1)
+    if settings.min_spacing is not None:
+        keep = spaced(points, depth.reshape(-1)[idx] / (0.5 * (k.fx + k.fy)), existing, settings.min_spacing)
+        idx, points = idx[keep], points[keep]
     if settings.max_new_per_frame is not None and idx.numel() > settings.max_new_per_frame:
         on = generator.device if generator is not None else idx.device  # the generator's device decides the draw
         pick = torch.randperm(idx.numel(), generator=generator, device=on)[: settings.max_new_per_frame].to(idx.device)
@@ -76,6 +83,61 @@ def gaussians_from_pixels(
         if anisotropic
         else None,
     )
+
+
+def _cell_keys(points: Tensor, cell_m: float) -> Tensor:  # [M, 3] -> [M] int64
+    """One integer per cubic cell of ``cell_m`` metres (21 bits per axis: +-1 km at 1 mm)."""
+    ijk = torch.floor(points / cell_m).long() & 0x1FFFFF
+    return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
+
+
+def spaced(
+    points: Tensor,  # [M, 3] candidate centres (m)
+    radii: Tensor,  # [M] their radii (m): one pixel's footprint
+    existing: GaussianMap | None,
+    spacing: float,
+) -> Tensor:  # [M] bool, True = add
+    """Candidates whose cell holds no Gaussian of ``existing`` and no earlier candidate.
+
+    A candidate's cell is ``spacing`` x its radius, rounded up to 1 mm x a power of two, so the
+    map keeps about one Gaussian per ``spacing`` footprints wherever it already has one, at any depth.
+    """
+    level = torch.ceil(torch.log2((spacing * radii / _CELL_BASE_M).clamp_min(1.0))).long()
+    keep = torch.zeros(points.shape[0], dtype=torch.bool, device=points.device)
+    means = existing.means.detach() if existing is not None and len(existing) else None
+    for lv in torch.unique(level).tolist():
+        at = torch.nonzero(level == lv).squeeze(1)
+        cell = _CELL_BASE_M * 2.0**lv
+        keys = _cell_keys(points[at], cell)
+        cells, inverse = torch.unique(keys, return_inverse=True)
+        order = torch.arange(at.numel(), device=points.device)
+        first = torch.full((cells.numel(),), at.numel(), dtype=torch.long, device=points.device)
+        first = first.scatter_reduce(0, inverse, order, reduce="amin")
+        free = first[inverse] == order  # the first candidate of each cell
+        if means is not None:
+            free &= ~torch.isin(keys, _cell_keys(means, cell))
+        keep[at] = free
+    return keep
+
+
+def over_budget(
+    gaussians: GaussianMap, incoming: int, max_gaussians: int, locked: frozenset[int] = frozenset()
+) -> Tensor:  # [N] bool, True = remove
+    """The least opaque Gaussians to drop so that the map plus ``incoming`` new ones holds ``max_gaussians``.
+
+    Gaussians of ``locked`` classes (edits) are never dropped, so the cap yields to them.
+    """
+    remove = torch.zeros(len(gaussians), dtype=torch.bool, device=gaussians.device)
+    excess = len(gaussians) + incoming - max_gaussians
+    if excess <= 0:
+        return remove
+    opacity = gaussians.logit_opacities.detach()
+    if locked:
+        ids = torch.tensor(sorted(locked), dtype=torch.long, device=gaussians.device)
+        opacity = torch.where(torch.isin(gaussians.labels, ids), torch.inf, opacity)
+    excess = min(excess, int(torch.isfinite(opacity).sum()))
+    remove[torch.topk(opacity, excess, largest=False).indices] = True
+    return remove
 
 
 def scene_radius(first_depth: np.ndarray, depth_ratio: float) -> float:

@@ -1,7 +1,8 @@
-"""Keyframe store and window selection: geometric overlap, the paper's semantic filter, U(t) weights."""
+"""Keyframe window selection: geometric overlap, the paper's semantic filter, U(t) weights."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,7 @@ def is_keyframe(index: int, every: int, last: int | None = None) -> bool:
 
 def overlap_scores(
     points_world: np.ndarray,  # [M, 3]
-    keyframes: list[CompactFrame],
+    keyframes: Sequence[CompactFrame],
     border_frac: float,
 ) -> np.ndarray:  # [K]
     """Fraction of the points that land inside each keyframe's image (minus a border), in front of it."""
@@ -71,7 +72,7 @@ class Window:
 
 
 def select_window(
-    store: list[CompactFrame],
+    store: Sequence[CompactFrame],
     points_world: np.ndarray,  # [M, 3] sampled from the current frame at its estimated pose
     current_labels: np.ndarray | None,  # [H, W]
     current_index: int,

@@ -240,6 +240,11 @@ class DensifySettings:
             (SplaTAM-S uses 0.5); radii grow accordingly.
         initial_opacity: opacity of new Gaussians.
         max_new_per_frame: cap on Gaussians added per frame (random subset; None = no cap).
+        min_spacing: Gaussian budget: a pixel adds no Gaussian when the map already holds one within
+            its cell, ``min_spacing`` times the pixel's footprint (rounded up to a power of two);
+            revisits then add only where the map has nothing (None = off, one per unexplained pixel).
+        max_gaussians: hard cap on the map: before new Gaussians join, the least opaque leave so
+            that the count stays at most this (None = no cap; classes locked by edits never leave).
     """
 
     sil_threshold: float = 0.5
@@ -247,6 +252,8 @@ class DensifySettings:
     resolution_scale: float = 1.0
     initial_opacity: float = 0.5
     max_new_per_frame: int | None = None
+    min_spacing: float | None = None
+    max_gaussians: int | None = None
 
     def __post_init__(self) -> None:
         if not 0 < self.resolution_scale <= 1:
@@ -256,6 +263,10 @@ class DensifySettings:
         _positive("densify", depth_error_factor=self.depth_error_factor)
         if self.max_new_per_frame is not None and self.max_new_per_frame < 1:
             raise ConfigError("densify.max_new_per_frame must be >= 1 or null")
+        if self.min_spacing is not None and not self.min_spacing > 0:
+            raise ConfigError(f"densify.min_spacing must be > 0 or null, got {self.min_spacing}")
+        if self.max_gaussians is not None and self.max_gaussians < 1:
+            raise ConfigError(f"densify.max_gaussians must be >= 1 or null, got {self.max_gaussians}")
 
 
 @dataclass(frozen=True)
@@ -275,6 +286,10 @@ class KeyframeSettings:
         uncertainty_weighting: weight each window frame's mapping loss by U(t) = exp(-tau (t - t0)),
             t0 the oldest frame of the window (paper; not in the code).
         uncertainty_tau: tau per frame.
+        max_keyframes: keyframes held with their images (None = no cap); past it the view a newer
+            keyframe covers best leaves (``slam.keyframe_store``), so revisits do not add memory.
+        max_megabytes: cap on the host memory of the keyframes' images (MiB; None = no cap).
+        keep_recent: the newest this many keyframes are never evicted (the window's freshest views).
     """
 
     every: int = 5
@@ -287,9 +302,17 @@ class KeyframeSettings:
     semantic_threshold: float = 0.7
     uncertainty_weighting: bool = True
     uncertainty_tau: float = 0.002
+    max_keyframes: int | None = 64
+    max_megabytes: float | None = 512.0
+    keep_recent: int = 4
 
     def __post_init__(self) -> None:
         _positive("keyframes", every=self.every, overlap_samples=self.overlap_samples)
+        _non_negative("keyframes", keep_recent=self.keep_recent)
+        if self.max_keyframes is not None and self.max_keyframes < max(self.keep_recent, 2):
+            raise ConfigError(f"keyframes.max_keyframes must be >= max(keep_recent, 2) or null: {self.max_keyframes}")
+        if self.max_megabytes is not None and not self.max_megabytes > 0:
+            raise ConfigError(f"keyframes.max_megabytes must be > 0 or null, got {self.max_megabytes}")
         if self.window_size < 2:
             raise ConfigError(f"keyframes.window_size must be >= 2, got {self.window_size}")
         if not (0 <= self.geometric_threshold < 1 and 0 < self.semantic_threshold <= 1):

@@ -27,11 +27,12 @@ from sgs_slam_core.render import cpu_backend
 from sgs_slam_core.render.api import RenderOutput, render
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam import photometric
-from sgs_slam_core.slam.densify import densify_mask, gaussians_from_pixels, scene_radius
+from sgs_slam_core.slam.densify import densify_mask, gaussians_from_pixels, over_budget, scene_radius
 from sgs_slam_core.slam.edits import EditLocks
 from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors, resize_arrays
 from sgs_slam_core.slam.guard import TrackingGuard
 from sgs_slam_core.slam.icp_init import IcpInit
+from sgs_slam_core.slam.keyframe_store import KeyframeStore
 from sgs_slam_core.slam.keyframes import Window, is_keyframe, select_window
 from sgs_slam_core.slam.mapper import MapResult, MapStats, WindowFrame, map_window
 from sgs_slam_core.slam.pose import predict_constant_velocity
@@ -142,7 +143,7 @@ class Slam:
         self.edits = EditLocks()
         self.gaussians = GaussianMap.empty(self.codec.num_channels, device=self.device)
         self.intrinsics: Intrinsics | None = None
-        self.keyframes: list[CompactFrame] = []
+        self.keyframes = KeyframeStore(self.config.keyframes)  # capped: the best-covered view leaves
         self.trajectory: list[tuple[int, int, np.ndarray]] = []  # (frame index, stamp_ns, c2w)
         self.scene_radius = 1.0
         self.seen_ids: set[int] = {0}
@@ -282,7 +283,7 @@ class Slam:
         keyframe = is_keyframe(index, self.config.keyframes.every, self.keyframes[-1].index if self.keyframes else None)
         if keyframe:
             stored = Frame(frame.rgb, frame.depth, frame.intrinsics, frame.labels, frame.stamp_ns, None, index)
-            self.keyframes.append(CompactFrame.from_frame(stored, np.linalg.inv(c2w)))
+            self.keyframes.add(CompactFrame.from_frame(stored, np.linalg.inv(c2w)))
         elapsed = time.perf_counter() - t0
         timings["map"] = elapsed
         return MapOutcome(mapping, window, keyframe, added, elapsed, timings)
@@ -330,7 +331,7 @@ class Slam:
             self._resumed_poses = [c2w.copy() for _, _, c2w in saved.trajectory[-2:]]
         # frame indices (keyframe ages) go on from the saved run
         self.frames_processed = saved.frames_processed if saved.frames_processed is not None else len(saved.trajectory)
-        self.keyframes = list(saved.keyframe_images)
+        self.keyframes = KeyframeStore(self.config.keyframes, saved.keyframe_images)
         with_images = {kf.index for kf in saved.keyframe_images}
         self._loaded_keyframe_poses = [(i, p) for i, p in saved.keyframes if i not in with_images]
         self._loaded_trajectory = list(saved.trajectory)
@@ -441,8 +442,11 @@ class Slam:
             mask = torch.nn.functional.interpolate(mask[None, None].float(), size=k.shape, mode="nearest")[0, 0] > 0.5
             mask &= source.valid
         new = gaussians_from_pixels(source, c2w_t, mask, self.codec.num_channels, self.config.densify,
-                                    generator=self.torch_rng)  # fmt: skip
-        self._set_gaussians(self.gaussians.cat(new))
+                                    generator=self.torch_rng, existing=self.gaussians)  # fmt: skip
+        kept, cap = self.gaussians, self.config.densify.max_gaussians
+        if cap is not None:  # the Gaussian budget: the least opaque make room
+            kept = kept.prune(over_budget(kept, len(new), cap, self.locked_labels))
+        self._set_gaussians(kept.cat(new))
         return len(new)
 
     def _select_window(self, data: FrameTensors, c2w: np.ndarray, labels: np.ndarray | None, index: int) -> Window:
@@ -509,5 +513,5 @@ class Slam:
         return render(self.gaussians, k, w2c, self.config.render, with_semantics=with_semantics)
 
     def keyframe_poses(self) -> list[tuple[int, np.ndarray]]:
-        """(frame index, c2w) of every keyframe."""
-        return [(kf.index, np.linalg.inv(kf.w2c)) for kf in self.keyframes]
+        """(frame index, c2w) of every keyframe, those the store has let go included."""
+        return self.keyframes.poses()

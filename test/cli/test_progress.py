@@ -5,9 +5,13 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 
+from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.metrics import ate
 from sgs_slam_core.runner.progress import ProgressBar, SlamProgress
+from sgs_slam_core.slam.keyframe_store import KeyframeStore
+from sgs_slam_core.slam.settings import KeyframeSettings
 
 
 def test_log_lines_carry_elapsed_eta_rate_and_extra_and_are_rate_limited(monkeypatch):
@@ -48,7 +52,10 @@ def test_slam_progress_shows_live_ate_gaussians_and_failures():
     out = io.StringIO()
     progress = SlamProgress(5, stream=out, interactive=False)
     progress.bar.log_every_s = 0.0
-    slam = SimpleNamespace(num_gaussians=12345, failures=0)
+    n = 12345
+    gaussians = GaussianMap(torch.zeros(n, 3), torch.zeros(n, 1), torch.zeros(n), torch.zeros(n, 3), torch.zeros(n, 3),
+                            torch.zeros(n, dtype=torch.long), torch.zeros(n, dtype=torch.long))  # fmt: skip
+    slam = SimpleNamespace(gaussians=gaussians, keyframes=KeyframeStore(KeyframeSettings()), failures=0)
     for i in range(5):
         slam.failures = 1 if i == 4 else 0
         progress.log_step(SimpleNamespace(index=i, gt_c2w=gts[i]), fake_step(ests[i]), slam)
@@ -58,5 +65,6 @@ def test_slam_progress_shows_live_ate_gaussians_and_failures():
     expected = 100 * ate(ests, gts).rmse
     assert progress.ate_cm == pytest.approx(expected)
     last = out.getvalue().splitlines()[-1]
-    assert f"ATE {expected:.2f} cm" in last and "12,345 Gaussians" in last and "1 tracking failures" in last
+    assert f"ATE {expected:.2f} cm" in last and "12,345 Gaussians (0.7 MB)" in last and "1 tracking failures" in last
+    assert "0 keyframes (0 MB)" in last
     assert "5/5" in last

@@ -75,3 +75,6 @@ def test_outputs_and_diagnostics_do_not_stall_under_use_sim_time(start, tiny_sce
                     == frames[-1].stamp_ns, 10.0)  # fmt: skip
     assert wait_for(lambda: diagnostics_of(received["diag"], "tracking_node")[-1][2]["frames_tracked"] == "3", 5.0)
     assert diagnostics_of(received["diag"], "tracking_node")[-1][2]["frames_in"] == "3"
+    held = {"gaussians", "gaussian_mb", "keyframes", "keyframe_mb", "keyframes_evicted"}  # the memory held
+    assert wait_for(lambda: diagnostics_of(received["diag"], "mapping_node")[-1][2]["keyframes"] == "1", 5.0)
+    assert held <= diagnostics_of(received["diag"], "mapping_node")[-1][2].keys()

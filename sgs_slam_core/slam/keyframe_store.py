@@ -1,0 +1,160 @@
+"""The keyframe store: compact host copies under a cap; when full, the best-covered view leaves.
+
+Every kept keyframe carries a small sample of its back-projected pixels (world points) and a
+thumbnail of its labels. When a keyframe arrives, each older one's points are projected into it
+(the window selection's geometric overlap) and their thumbnails compared (the semantic mIoU of the
+paper's filter). When the store is over its cap, the keyframe whose view a newer keyframe covers
+best leaves: revisiting a place replaces its old views instead of piling up new ones, while views
+nothing newer sees (the only look at a corner) stay.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import overload
+
+import numpy as np
+
+from sgs_slam_core.slam.frame_data import DEPTH_UNITS_PER_M, CompactFrame
+from sgs_slam_core.slam.keyframes import label_miou, overlap_scores
+from sgs_slam_core.slam.settings import KeyframeSettings
+
+__all__ = ["KeyframeStore", "StoreStats", "view_points"]
+
+_POINTS = 256  # world points per keyframe for the coverage test
+_THUMB = 40  # label thumbnails are about this many pixels wide
+
+
+@dataclass(frozen=True)
+class StoreStats:
+    """What the store holds now and what it has let go."""
+
+    held: int  # keyframes with images
+    nbytes: int  # host bytes of their images
+    added: int  # keyframes ever added
+    evicted: int  # keyframes dropped by the cap
+
+
+@dataclass
+class _Entry:
+    frame: CompactFrame
+    points: np.ndarray  # [P, 3] world points sampled from the keyframe's depth
+    thumb: np.ndarray | None  # [h, w] labels, subsampled
+    covered: dict[int, float]  # newer keyframe index -> how well it covers this view, in [0, 1]
+
+
+def view_points(kf: CompactFrame, count: int = _POINTS) -> np.ndarray:  # [P, 3]
+    """Up to ``count`` pixels with depth, evenly spread over the image, back-projected to the world."""
+    v, u = np.nonzero(kf.depth)
+    if v.size == 0:
+        return np.zeros((0, 3))
+    pick = np.linspace(0, v.size - 1, min(count, v.size)).astype(np.int64)  # deterministic: no rng is drawn
+    v, u = v[pick], u[pick]
+    z = kf.depth[v, u].astype(np.float64) / DEPTH_UNITS_PER_M  # [P] m
+    k = kf.intrinsics
+    cam = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=1)
+    c2w = np.linalg.inv(kf.w2c)
+    return cam @ c2w[:3, :3].T + c2w[:3, 3]
+
+
+def _thumbnail(labels: np.ndarray | None) -> np.ndarray | None:
+    if labels is None:
+        return None
+    step = max(1, labels.shape[1] // _THUMB)
+    return labels[::step, ::step]
+
+
+class KeyframeStore(Sequence[CompactFrame]):
+    """Keyframes in insertion order (oldest first) under ``max_keyframes`` and ``max_megabytes``.
+
+    Indexing and iteration give the :class:`CompactFrame` s held, so window selection reads it as a
+    list. The poses of every keyframe ever added stay (a map file lists them; 128 bytes each).
+    """
+
+    def __init__(self, settings: KeyframeSettings, frames: Sequence[CompactFrame] = ()) -> None:
+        self.settings = settings
+        self._entries: list[_Entry] = []
+        self._poses: list[tuple[int, np.ndarray]] = []  # (frame index, w2c [4, 4]) of every keyframe added
+        self._nbytes = 0
+        self.evicted = 0
+        for kf in frames:
+            self.add(kf)
+
+    # ------------------------------------------------------------------ the sequence
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    @overload
+    def __getitem__(self, i: int) -> CompactFrame: ...
+    @overload
+    def __getitem__(self, i: slice) -> list[CompactFrame]: ...
+    def __getitem__(self, i: int | slice) -> CompactFrame | list[CompactFrame]:
+        if isinstance(i, slice):
+            return [e.frame for e in self._entries[i]]
+        return self._entries[i].frame
+
+    def __iter__(self) -> Iterator[CompactFrame]:
+        return (e.frame for e in self._entries)
+
+    # ------------------------------------------------------------------ state
+    @property
+    def nbytes(self) -> int:
+        """Host bytes held by the keyframes' images."""
+        return self._nbytes
+
+    def stats(self) -> StoreStats:
+        """Held, bytes, added and evicted counts."""
+        return StoreStats(len(self._entries), self._nbytes, len(self._poses), self.evicted)
+
+    def poses(self) -> list[tuple[int, np.ndarray]]:
+        """(frame index, c2w [4, 4]) of every keyframe added, evicted ones included, oldest first."""
+        return [(i, np.linalg.inv(w2c)) for i, w2c in self._poses]
+
+    # ------------------------------------------------------------------ adding and evicting
+    def add(self, kf: CompactFrame) -> list[int]:
+        """Keep ``kf`` (the newest keyframe); returns the frame indices of the keyframes it pushed out."""
+        entry = _Entry(kf, view_points(kf), _thumbnail(kf.labels), {})
+        self._score_against(entry)
+        self._entries.append(entry)
+        self._poses.append((kf.index, kf.w2c.copy()))
+        self._nbytes += kf.nbytes
+        gone = []
+        while self._over_cap():
+            victim = self._victim()
+            if victim is None:
+                break
+            gone.append(self._remove(victim))
+        return gone
+
+    def _score_against(self, new: _Entry) -> None:
+        """Record how well ``new`` covers each older keyframe's view (overlap, times label agreement)."""
+        s = self.settings
+        for e in self._entries:
+            overlap = float(overlap_scores(e.points, [new.frame], s.overlap_border_frac)[0])
+            if overlap > 0 and e.thumb is not None and new.thumb is not None and e.thumb.shape == new.thumb.shape:
+                overlap *= 0.5 + 0.5 * label_miou(e.thumb, new.thumb)  # same view, same classes: redundant
+            if overlap > 0:
+                e.covered[new.frame.index] = overlap
+
+    def _over_cap(self) -> bool:
+        s = self.settings
+        too_many = s.max_keyframes is not None and len(self._entries) > s.max_keyframes
+        too_big = s.max_megabytes is not None and self._nbytes > s.max_megabytes * 2**20
+        return too_many or too_big
+
+    def _victim(self) -> int | None:
+        """Position of the keyframe a newer one covers best (the oldest on ties); the newest are kept."""
+        evictable = len(self._entries) - self.settings.keep_recent
+        if evictable <= 0:
+            return None
+        scores = [max(e.covered.values(), default=0.0) for e in self._entries[:evictable]]
+        return int(np.argmax(scores))
+
+    def _remove(self, position: int) -> int:
+        entry = self._entries.pop(position)
+        self._nbytes -= entry.frame.nbytes
+        self.evicted += 1
+        for e in self._entries:
+            e.covered.pop(entry.frame.index, None)  # a view that has left covers nothing any more
+        return entry.frame.index
