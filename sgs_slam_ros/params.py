@@ -71,6 +71,14 @@ COMMON = (
     ParamSpec("use_semantics", True, "subscribe semantic/image (class-id labels)", read_only=True),
     ParamSpec("depth_scale", 1000.0, "16UC1 depth units per metre (1000 = mm)", bounds=(1.0, 100000.0)),
     ParamSpec(
+        "downscale",
+        1.0,
+        "processing size: divide the width and height of colour, depth, labels and camera_info by this "
+        "(as sgs-slam run --downscale; 4 turns 640x480 into 160x120)",
+        bounds=(1.0, 16.0),
+        read_only=True,
+    ),
+    ParamSpec(
         "lockstep", False, "process every frame in order (replays, tests); else keep up by dropping", read_only=True
     ),
     ParamSpec("stale_input_s", 5.0, "/diagnostics warns when an input is silent this long (s)", bounds=(0.5, 3600.0)),
