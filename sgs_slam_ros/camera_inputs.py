@@ -57,7 +57,7 @@ class CameraInputs:
         params.on_change["sync_slop_s"] = self.assembler.set_slop
         params.on_change["depth_scale"] = lambda v: setattr(self.assembler, "depth_scale", v)
         self.colour_rate = RateMeter()
-        qos = input_qos(params["input_qos"], params["sync_queue_size"])
+        qos = input_qos(params["input_qos"], params["input_queue_size"])
         names = ["rgb", "depth", *(["semantic"] if params["use_semantics"] else [])]
         for i, name in enumerate(names):
             node.create_subscription(Image, f"{name}/image", lambda msg, i=i, n=name: self._image(i, n, msg), qos)
