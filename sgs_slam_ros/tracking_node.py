@@ -10,6 +10,7 @@ Inputs (relative, remappable): ``rgb/image``, ``depth/image``, ``semantic/image`
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections.abc import Callable
@@ -18,6 +19,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from bags.layout import CAMERA_FRAME
@@ -25,6 +27,7 @@ from msg_adapters import AdapterError, gaussians_from_cloud, pointcloud_to_numpy
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.geometry.gravity import FloorSettings, MapAlignment, initial_map_pose, pose_from_xyz_rpy
+from sgs_slam_core.labels import LabelError, LabelTable
 from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.slam.system import Slam, TrackOutcome
 from sgs_slam_ros.activity import Activity
@@ -88,6 +91,8 @@ class TrackingNode(Node):
         self.outputs = RateMeter()
         self.camera = CameraInputs(self, self.params, self._on_frame, self.activity, hints=SILENT_HINTS)
         self.assembler = self.camera.assembler
+        if self.params["use_semantics"]:  # a label source (segmentation_node) names the table of its ids
+            self.create_subscription(String, "semantic/label_table", self._on_label_table, latched_qos())
         self.pose_pub = self.create_publisher(PoseStamped, "~/pose", output_qos(10))
         self.path_pub = self.create_publisher(Path, "~/path", output_qos(1))
         self.tf = TfPublisher(
@@ -143,6 +148,22 @@ class TrackingNode(Node):
                 f"map frame levelled on the floor: camera {plane.height_m:.2f} m above it, tilted "
                 f"{plane.tilt_deg(up):.1f} deg from camera_mount ({100 * plane.inlier_fraction:.0f} % of the pixels)"
             )
+
+    def _on_label_table(self, msg: String) -> None:
+        """Use the label source's table when the map is still empty; say so when it differs later."""
+        log, slam = self.get_logger(), self.pipeline.slam
+        try:
+            table = LabelTable.from_dict(json.loads(msg.data))
+        except (ValueError, LabelError) as err:
+            self.assembler.reject("bad label table", str(err))
+            return
+        if table == slam.codec.table:
+            log.info(f"label source's table '{table.name}' ({len(table)} classes) is the map's")
+        elif slam.frames_processed == 0 and slam.num_gaussians == 0:
+            slam.codec = slam.codec.with_table(table)
+            log.info(f"labels: using the label source's table '{table.name}' ({len(table)} classes)")
+        else:
+            log.warn(f"the label source's table '{table.name}' differs from the map's; call ~/reset to use it")
 
     def _on_gaussians(self, msg: PointCloud2) -> None:
         try:
