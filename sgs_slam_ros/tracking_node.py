@@ -262,8 +262,11 @@ class TrackingNode(Node):
         return level, message, values
 
     def close(self) -> None:
-        """Stop the workers (this node owns the pipeline)."""
+        """Stop the workers (this node owns the pipeline) and log the run's frame counts."""
         self.pipeline.shutdown()
+        counts = self.camera.counts(self.pipeline.stats.dropped_frames)
+        counts["frames_tracked"] = str(self.pipeline.stats.tracked)
+        self.get_logger().info("final counts: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
 
 
 def main(args: list[str] | None = None) -> int:
