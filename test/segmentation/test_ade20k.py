@@ -27,3 +27,13 @@ def test_outdoor_classes_are_unlabelled():
     lut = ade20k_to_nyu40_lut()
     assert all(lut[ADE20K_CLASSES.index(n)] == 0 for n in ("sky", "road", "car", "tree", "grass", "airplane"))
     assert lut.shape == (150,) and lut.min() == 0 and lut.max() == 40
+
+
+def test_without_the_extra_the_model_is_one_clear_error(monkeypatch):
+    import sys
+
+    from sgs_slam_core.segmentation import SegmentationError, Segmenter
+
+    monkeypatch.setitem(sys.modules, "transformers", None)  # as if the extra were not installed
+    with pytest.raises(SegmentationError, match=r"pip install 'sgs_slam_ros\[segmentation\]'"):
+        Segmenter.from_pretrained()
