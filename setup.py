@@ -24,7 +24,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/rviz", glob("rviz/*.rviz")),
-        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.xml")),
     ],
     zip_safe=True,
     install_requires=[
@@ -45,6 +45,7 @@ setup(
         "ros": ["ros-jazzy-rclpy[fastrtps]", "ros-jazzy-common-interfaces"],
         "viewer": VIEWER,  # sgs-slam run --viewer rerun|foxglove
         "lpips": ["lpips>=0.1.4"],  # ships the LPIPS linear layers (the AlexNet backbone is still needed)
+        "segmentation": ["transformers>=4.40"],  # segmentation_node: SegFormer (ADE20K) through Hugging Face
         "test": ["pytest>=8", "ruff>=0.6", "evo>=1.28", "colcon-core", "colcon-ros", "catkin_pkg", *VIEWER],
     },
     entry_points={
@@ -55,6 +56,7 @@ setup(
             "slam_node = sgs_slam_ros.slam_node:main",
             "tracking_node = sgs_slam_ros.tracking_node:main",
             "mapping_node = sgs_slam_ros.mapping_node:main",
+            "segmentation_node = sgs_slam_ros.segmentation_node:main",
         ],
     },
 )

@@ -19,6 +19,7 @@ from sgs_slam_core.cli import add_debug_flag, run_command
 from sgs_slam_core.cli.args import IntRange
 from sgs_slam_core.cli.run import default_preset
 from sgs_slam_core.datasets import FORMATS, DatasetOptions, open_dataset
+from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.runner.progress import ProgressBar
 
 __all__ = ["main"]
@@ -30,7 +31,9 @@ def _convert(args: argparse.Namespace) -> int:
     out = args.out or args.input.with_name(args.input.name.rstrip("/") + "_bag")
     if out.exists():
         raise BagError(f"{out} exists; refusing to overwrite")
-    dataset = open_dataset(args.input, args.format, DatasetOptions(max_frames=args.max_frames))
+    dataset = open_dataset(
+        args.input, args.format, DatasetOptions(max_frames=args.max_frames, downscale=args.downscale)
+    )
     bar = ProgressBar(len(dataset), "convert")
     t0 = time.perf_counter()
     preset = default_preset(args.input, args.format)
@@ -46,7 +49,17 @@ def _convert(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - t0
     size_mib, rate = summary.bytes / 2**20, summary.frames / elapsed
     print(f"wrote {summary.frames} frames ({size_mib:.1f} MiB, {rate:.1f} frames/s) to {out} (preset {preset})")
+    for line in _left_out(dataset, summary.frames, args):
+        print(line)
     return 0
+
+
+def _left_out(dataset: Dataset, written: int, args: argparse.Namespace) -> list[str]:
+    """One line per reason why frames the folder lists are not in the bag."""
+    lines = [f"left out {n} {why}" for why, n in getattr(dataset, "left_out", {}).items() if n]
+    if args.max_frames is not None and written == args.max_frames:
+        lines.append(f"stopped at --max-frames {args.max_frames}: later frames were not converted")
+    return lines
 
 
 def _info(args: argparse.Namespace) -> int:
@@ -63,6 +76,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--format", default="auto", choices=["auto", *(f for f in FORMATS if f != "mcap")])
     c.add_argument("--out", type=Path, help="bag folder to create (default: INPUT_bag); never overwritten")
     c.add_argument("--max-frames", type=_FRAMES, help=f"convert at most N frames ({_FRAMES.bounds})")
+    c.add_argument(
+        "--downscale", type=float, default=1.0, help="divide width and height by this (as sgs-slam run --downscale)"
+    )
     c.add_argument("--compress", choices=["zstd", "none"], default="zstd", help="MCAP chunk compression")
     c.set_defaults(func=_convert)
     i = sub.add_parser("info", help="topics, counts, duration, encodings and label table of a bag")

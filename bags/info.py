@@ -67,8 +67,10 @@ class BagInfo:
             except BagError as err:
                 lines.append(f"labels:   unreadable ({err})")
             else:
-                names = [f"{c.id}:{c.name}" for c in table if c.id]
-                lines.append(f"labels:   {table.name} ({len(names)} classes) {' '.join(names[:40])}")
+                names = [f"{c.id}:{c.name}" for c in table]
+                more = f" ... ({len(names) - 40} more)" if len(names) > 40 else ""
+                count = f"{len(names)} class{'es' * (len(names) != 1)}"
+                lines.append(f"labels:   table '{table.name}', {count}: {' '.join(names[:40])}{more}")
         return "\n".join(lines)
 
 

@@ -38,6 +38,7 @@ from bags.mcap_index import MessageRef
 from bags.reader import bag_file, open_index, read_metadata
 from msg_adapters import stamp_to_ns
 from sgs_slam_ros.runtime import stop_on_signals
+from sgs_slam_ros.transport import TRANSPORTS, apply_transport
 
 __all__ = ["RESET_SERVICES", "BagPlayer", "PlayStats", "main"]
 
@@ -237,6 +238,13 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
         "--reset", action="store_true", help=f"call the SLAM's reset services first ({', '.join(RESET_SERVICES)})"
     )
     p.add_argument("--reset-service", action="append", metavar="NAME", help="reset this Trigger service instead")
+    p.add_argument(
+        "--transport",
+        choices=TRANSPORTS,
+        default="shm",
+        help="shm: Fast DDS shared memory with segments for whole frames (config/fastdds_shm.xml; a profile "
+        "named by FASTRTPS_DEFAULT_PROFILES_FILE is kept); default: Fast DDS's built-in transports",
+    )
     return p.parse_args(argv)
 
 
@@ -244,6 +252,7 @@ def main(args: list[str] | None = None) -> int:
     """Entry point of ``bag_player``; Ctrl-C stops cleanly."""
     argv = list(sys.argv if args is None else args)
     opts = _parse(remove_ros_args(argv)[1:])
+    transport = apply_transport(opts.transport)  # before rclpy.init: Fast DDS reads it with the first participant
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C stops play before the context
     executor = MultiThreadedExecutor(num_threads=2)
     player: BagPlayer | None = None
@@ -261,6 +270,7 @@ def main(args: list[str] | None = None) -> int:
                                opts.timeout, opts.clock)  # fmt: skip
             if stopped.is_set():  # the signal came while the bag was being indexed
                 return 0
+            player.get_logger().info(f"transport: {transport}")
             executor.add_node(player)
             # Not a daemon, and joined below: a daemon thread still inside rcl_wait when the interpreter
             # finalises aborts the process ("terminate called without an active exception", ~1 exit in 15).

@@ -2,25 +2,32 @@
 
 Shared by ``tracking_node`` and a standalone ``mapping_node``: both subscribe ``{rgb,depth,semantic}/image``
 and ``rgb/camera_info`` with the input QoS, synchronise them into frames (:class:`FrameAssembler`) and
-report inputs that stay silent (:class:`InputWatch`).
+report inputs that stay silent while the node waits (:class:`InputWatch`, :class:`Activity`) and
+frames that never arrived (gaps in each stream's stamps, :class:`StreamGaps`).
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Any
 
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
+from msg_adapters import stamp_to_ns
 from sgs_slam_core.frame import Frame
-from sgs_slam_ros.diagnostics import WARN, RateMeter
+from sgs_slam_ros.activity import Activity
+from sgs_slam_ros.diagnostics import OK, WARN, RateMeter
 from sgs_slam_ros.frames import FrameAssembler
 from sgs_slam_ros.inputs import InputWatch
 from sgs_slam_ros.params import NodeParams
 from sgs_slam_ros.qos import input_qos
+from sgs_slam_ros.stream_gaps import GapReport, StreamGaps
 
 __all__ = ["CameraInputs"]
+
+_LOSS_LOG_S = 10.0  # after the first, losses are logged at most this often (with running totals)
 
 
 class CameraInputs:
@@ -28,7 +35,7 @@ class CameraInputs:
 
     ``extra_topics``: further inputs the node subscribes itself (name -> topic relative to the node),
     watched for silence too (the node calls ``watch.tick(name)``); ``hints``: a sentence per input
-    added to its "silent" log line.
+    added to its "silent" log line; ``activity``: the node's work (silence counts only while idle).
     """
 
     def __init__(
@@ -36,18 +43,21 @@ class CameraInputs:
         node: Node,
         params: NodeParams,
         on_frame: Callable[[Frame], None],
+        activity: Activity,
         extra_topics: dict[str, str] | None = None,
         hints: dict[str, str] | None = None,
     ) -> None:
-        log = node.get_logger().warn
+        self.logger = node.get_logger()
+        log = self.logger.warn
+        self.log, self.activity = log, activity
         self.assembler = FrameAssembler(
             params["use_semantics"], params["sync_queue_size"], round(params["sync_slop_s"] * 1e9),
-            params["depth_scale"], on_frame, log,
+            params["depth_scale"], on_frame, log, params["downscale"],
         )  # fmt: skip
         params.on_change["sync_slop_s"] = self.assembler.set_slop
         params.on_change["depth_scale"] = lambda v: setattr(self.assembler, "depth_scale", v)
         self.colour_rate = RateMeter()
-        qos = input_qos(params["input_qos"], params["sync_queue_size"])
+        qos = input_qos(params["input_qos"], params["input_queue_size"])
         names = ["rgb", "depth", *(["semantic"] if params["use_semantics"] else [])]
         for i, name in enumerate(names):
             node.create_subscription(Image, f"{name}/image", lambda msg, i=i, n=name: self._image(i, n, msg), qos)
@@ -56,24 +66,55 @@ class CameraInputs:
         topics["camera_info"] = node.resolve_topic_name("rgb/camera_info")
         topics.update({n: node.resolve_topic_name(t) for n, t in (extra_topics or {}).items()})
         self.watch = InputWatch(topics, log, hints)
+        self.gaps = {name: StreamGaps() for name in [*names, "camera_info"]}
+        self._loss_logged_at: float | None = None
+        self._busy_logged = False
 
     def _image(self, index: int, name: str, msg: Any) -> None:
         if index == 0:
             self.colour_rate.tick()
         self.watch.tick(name)
+        self._count_gap(name, msg)
         self.assembler.image(index, msg)
 
     def _camera_info(self, msg: Any) -> None:
         self.watch.tick("camera_info")
+        self._count_gap("camera_info", msg)
         self.assembler.camera_info(msg)
 
-    def silence(self, stale_s: float, nothing: str) -> tuple[list[str], tuple[int, str] | None]:
-        """The inputs silent for ``stale_s`` s, and (WARN, message) when that stops the node's work.
+    def _count_gap(self, name: str, msg: Any) -> None:
+        report = self.gaps[name].add(stamp_to_ns(msg.header.stamp))
+        if report is not None:
+            self._log_loss(name, report)
 
-        ``nothing`` names what is missing in the message (e.g. "no frames", "nothing mapped").
+    def _log_loss(self, name: str, report: GapReport) -> None:
+        """The first loss at once, later ones at most every few seconds, with the running totals."""
+        now = time.monotonic()
+        if self._loss_logged_at is not None and now - self._loss_logged_at < _LOSS_LOG_S:
+            return
+        self._loss_logged_at = now
+        totals = ", ".join(f"{self.watch.topics[n]} {g.lost}" for n, g in self.gaps.items() if g.lost)
+        self.log(
+            f"{report.lost} frame(s) of {self.watch.topics[name]} never arrived (a stamp gap of "
+            f"{report.gap_ns / 1e6:.0f} ms at a period of {report.period_ns / 1e6:.1f} ms); lost so far: {totals} "
+            "(counted in /diagnostics as frames_lost and lost[...]; see input_qos and the transport in the README)"
+        )
+
+    def silence(self, stale_s: float, nothing: str) -> tuple[list[str], tuple[int, str] | None]:
+        """The inputs silent for ``stale_s`` s of idle time, and (level, message) when that says something.
+
+        ``nothing`` names what is missing in the message (e.g. "no frames", "nothing mapped"). A busy
+        node (a frame in work for longer than ``stale_s``) says so, with its processing rate, and
+        judges no input silent.
         """
-        silent = self.watch.silent(stale_s)
-        if self.watch.all_silent(stale_s):
+        idle_since = self.activity.idle_since()
+        if idle_since is None:
+            busy_s = self.activity.busy_s()
+            if busy_s <= stale_s:
+                return [], None
+            return [], (OK, self._busy_message(busy_s))
+        silent = self.watch.silent(stale_s, idle_since)
+        if self.watch.all_silent(stale_s, idle_since):
             last = self.colour_rate.last
             waited = "yet" if last is None else f"for {self.colour_rate.idle_s():.0f} s"
             return silent, (WARN, f"no input {waited}: waiting for {', '.join(self.watch.topics.values())}")
@@ -82,15 +123,42 @@ class CameraInputs:
             return silent, (WARN, f"{nothing}: {names} silent while the others arrive")
         return silent, None
 
+    def _busy_message(self, busy_s: float) -> str:
+        rate = self.activity.rate_hz()
+        text = (
+            f"busy: working on a frame for {busy_s:.0f} s (processing {rate:.3g} frames/s); "
+            "inputs are judged silent only while the node waits"
+        )
+        if not self._busy_logged:
+            self._busy_logged = True
+            self.logger.info(text)
+        return text
+
     def counts(self, pipeline_dropped: int) -> dict[str, str]:
-        """The input counts for /diagnostics (``pipeline_dropped``: frames the pipeline dropped)."""
+        """The input counts for /diagnostics (``pipeline_dropped``: frames the pipeline dropped).
+
+        ``frames_in`` counts colour images that arrived; ``frames_lost`` those that never did (gaps in
+        the colour stamps), ``lost[...]`` the same for the other inputs.
+        """
         a = self.assembler
         return {
             "frames_in": str(a.colour_in),
+            "frames_lost": str(self.gaps["rgb"].lost),
             "frames_dropped": str(pipeline_dropped + a.colour_dropped),
             "frames_rejected": str(a.frames_rejected),
             "frames_waiting": str(a.frames_waiting),
+            **{f"lost[{self.watch.topics[n]}]": str(g.lost) for n, g in self.gaps.items() if n != "rgb"},
         }
+
+    def sizes(self) -> dict[str, str]:
+        """The input and processing sizes for /diagnostics ("n/a" before the first frame)."""
+        a = self.assembler
+
+        def text(size: tuple[int, int] | None) -> str:
+            return "n/a" if size is None else f"{size[0]}x{size[1]}"
+
+        return {"input_size": text(a.input_size), "processing_size": text(a.processing_size),
+                "downscale": f"{a.downscale:g}"}  # fmt: skip
 
     def silent_names(self, silent: list[str]) -> str:
         """The topics of ``silent`` for /diagnostics ("none" when empty)."""
@@ -100,3 +168,5 @@ class CameraInputs:
         """Forget queued messages and silence reports (after a SLAM reset)."""
         self.assembler.reset()
         self.watch.reset()
+        for gaps in self.gaps.values():
+            gaps.reset()

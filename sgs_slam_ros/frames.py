@@ -4,6 +4,8 @@ Bad input never raises out of a callback: each cause is logged once (with a runn
 counted for /diagnostics, and the frame is dropped. Every colour image is accounted for: it becomes
 a frame, is dropped by the synchroniser (no partner in time, or pushed out of its queue), is
 rejected (bad input), or still waits (``colour_in == emitted + colour_dropped + rejected + waiting``).
+With a ``downscale`` above 1 each frame is brought to the processing size exactly as ``sgs-slam run
+--downscale`` does (colour area-averaged, depth and labels nearest, intrinsics scaled).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from msg_adapters import (
     rgb_from_image,
     stamp_to_ns,
 )
+from sgs_slam_core.datasets.base import MIN_IMAGE_SIDE, resize_frame
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.geometry.camera import Intrinsics
@@ -52,8 +55,12 @@ class FrameAssembler:
         depth_scale: float,
         on_frame: Callable[[Frame], None],
         log: Callable[[str], None],
+        downscale: float = 1.0,
     ) -> None:
         self.use_semantics = use_semantics
+        self.downscale = downscale
+        self.input_size: tuple[int, int] | None = None  # (width, height) of the latest frame as received
+        self.processing_size: tuple[int, int] | None = None  # and as handed on
         self.depth_scale = depth_scale
         self.on_frame, self.log = on_frame, log
         self.sync = ApproximateSync(3 if use_semantics else 2, queue_size, slop_ns)
@@ -168,6 +175,17 @@ class FrameAssembler:
             )
         if not np.any(depth > 0):
             raise _RejectedError("depth image has no valid pixel")
+        self.input_size = (k.width, k.height)
+        if self.downscale != 1.0:
+            k = k.scaled(1.0 / self.downscale)
+            if min(k.width, k.height) < MIN_IMAGE_SIDE:
+                raise _RejectedError(
+                    "downscale leaves too small a frame",
+                    f"{self.input_size[0]}x{self.input_size[1]} / {self.downscale:g} = {k.width}x{k.height}; "
+                    f"SLAM needs at least {MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE}",
+                )
+            rgb, depth, labels = resize_frame(rgb, depth, labels, k.width, k.height)
+        self.processing_size = (k.width, k.height)
         try:
             return Frame(rgb=rgb, depth=depth, intrinsics=k, labels=labels, stamp_ns=stamp_ns)
         except SgsSlamError as err:

@@ -2,6 +2,8 @@
 
 A node that synchronises RGB, depth, labels and camera_info makes no frame while any one of them is
 missing (a segmentation node that is not running, a remap typo), and nothing else would say so.
+Silence is only counted while the node is idle and waiting: a node busy with a slow frame (or a
+lockstep player waiting for it) receives nothing, and that is not the inputs' fault.
 """
 
 from __future__ import annotations
@@ -34,32 +36,42 @@ class InputWatch:
             self.last[name] = time.monotonic()
             self._reported.discard(name)
 
-    def idle_s(self, name: str, now: float | None = None) -> float:
-        """Seconds since input ``name`` last arrived (since start if never)."""
+    def idle_s(self, name: str, now: float | None = None, idle_since: float | None = None) -> float:
+        """Seconds input ``name`` has been silent while the node was idle (since ``idle_since``).
+
+        Without ``idle_since``: seconds since it last arrived (since start if never).
+        """
         now = time.monotonic() if now is None else now
         last = self.last[name]
-        return now - (self.started if last is None else last)
+        since = self.started if last is None else last
+        return now - max(since, idle_since if idle_since is not None else since)
 
-    def silent(self, stale_s: float) -> list[str]:
-        """Inputs without a message for ``stale_s`` while some other input had one within ``stale_s``."""
+    def silent(self, stale_s: float, idle_since: float | None = None) -> list[str]:
+        """Inputs silent for ``stale_s`` of the node's idle time while another input had one within ``stale_s``.
+
+        ``idle_since``: when the node last became idle (monotonic s); silence before it is not counted.
+        """
         now = time.monotonic()
         with self._lock:
             fresh = [n for n in self.topics if self.last[n] is not None and now - self.last[n] <= stale_s]
-            quiet = [n for n in self.topics if self.idle_s(n, now) > stale_s] if fresh else []
+            quiet = [n for n in self.topics if self.idle_s(n, now, idle_since) > stale_s] if fresh else []
             new = [n for n in quiet if n not in self._reported]
             self._reported.update(new)
         for name in new:
             never = self.last[name] is None
-            waited = "never received" if never else f"nothing for {self.idle_s(name):.0f} s"
+            waited = "never received" if never else f"nothing for {self.idle_s(name, now):.0f} s"
             others = ", ".join(self.topics[n] for n in fresh)
             hint = f"; {self.hint[name]}" if name in self.hint else ""
-            self.log(f"{self.topics[name]} is silent ({waited}) while {others} arrive{'s' * (len(fresh) == 1)}{hint}")
+            self.log(
+                f"{self.topics[name]} is silent ({waited}) while the node waits and "
+                f"{others} arrive{'s' * (len(fresh) == 1)}{hint}"
+            )
         return quiet
 
-    def all_silent(self, stale_s: float) -> bool:
-        """No input had a message within ``stale_s``."""
+    def all_silent(self, stale_s: float, idle_since: float | None = None) -> bool:
+        """No input had a message within ``stale_s`` of the node's idle time."""
         now = time.monotonic()
-        return all(self.idle_s(n, now) > stale_s for n in self.topics)
+        return all(self.idle_s(n, now, idle_since) > stale_s for n in self.topics)
 
     def reset(self) -> None:
         """Forget the reports (they are logged again if the inputs stay silent)."""

@@ -3,8 +3,9 @@
 Outputs, each published after new work (a mapped frame, an edit, a load) and at most at its rate:
 ``~/render/color`` (rgb8), ``~/render/semantic`` (rgb8 palette), ``~/render/labels`` (16UC1 ids),
 ``~/render/depth`` (32FC1 m), rendered at the pose of the newest mapped frame with its stamp and
-camera frame id; ``~/points`` (PointCloud2 x, y, z, rgb, label) and ``~/gaussians`` (PointCloud2
-with every Gaussian field), both transient local (latched); ``/diagnostics``. Services:
+camera frame id, at the processing size (``downscale``), which ``~/render/camera_info`` describes;
+``~/points`` (PointCloud2 x, y, z, rgb, label) and ``~/gaussians`` (PointCloud2 with every Gaussian
+field), both transient local (latched); ``/diagnostics``. Services:
 ``~/save_map``, ``~/load_map`` (Trigger, file from ``map_path``), ``~/reset`` (Trigger: also
 publishes the empty map), ``~/pause`` (SetBool), ``~/apply_edit`` (Trigger: the edit the ``edit.*``
 parameters describe) and ``~/undo_edit`` (Trigger: revert the last edit and unlock its classes).
@@ -24,7 +25,7 @@ import numpy as np
 import torch
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
-from sensor_msgs.msg import Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_srvs.srv import SetBool, Trigger
 
 from bags.layout import CAMERA_FRAME
@@ -36,10 +37,11 @@ from sgs_slam_core.live import MapJob, SlamPipeline
 from sgs_slam_core.mapio import load_map, save_map
 from sgs_slam_core.slam.footprint import footprint
 from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
+from sgs_slam_ros.activity import Activity
 from sgs_slam_ros.camera_inputs import CameraInputs
 from sgs_slam_ros.diagnostics import OK, WARN, Diagnostics, RateMeter
 from sgs_slam_ros.edits import requested_edits
-from sgs_slam_ros.messages import image_msg, pointcloud_msg
+from sgs_slam_ros.messages import camera_info_msg, image_msg, pointcloud_msg
 from sgs_slam_ros.params import COMMON, EDIT, MAPPING, declare, slam_config
 from sgs_slam_ros.qos import latched_qos, output_qos
 from sgs_slam_ros.runtime import run_nodes
@@ -83,7 +85,7 @@ class MappingNode(Node):
             slam = Slam(slam_config(self.params))
             slam.prepare(self.get_logger().info)  # compile the CPU kernels now, not inside the first frame
             pipeline = SlamPipeline(slam, self.params["lockstep"], track=False, map=True, log=self.get_logger().error)
-            self._subscribe_inputs()
+            self._subscribe_inputs(pipeline)
         self.pipeline = pipeline
         pipeline.map_listeners.append(self._on_mapped)
         out = output_qos(2)
@@ -91,6 +93,7 @@ class MappingNode(Node):
         self.semantic_pub = self.create_publisher(Image, "~/render/semantic", out)
         self.labels_pub = self.create_publisher(Image, "~/render/labels", out)
         self.depth_pub = self.create_publisher(Image, "~/render/depth", out)
+        self.render_info_pub = self.create_publisher(CameraInfo, "~/render/camera_info", out)
         self.points_pub = self.create_publisher(PointCloud2, "~/points", latched_qos())
         self.gaussians_pub = self.create_publisher(PointCloud2, "~/gaussians", latched_qos())
         self.renders = Throttled(self, self.params["render_rate_hz"], self.publish_renders)
@@ -108,8 +111,9 @@ class MappingNode(Node):
         self.diagnostics = Diagnostics(self, self._status)
 
     # ------------------------------------------------------------------ standalone inputs
-    def _subscribe_inputs(self) -> None:
-        self.camera = CameraInputs(self, self.params, self._on_frame, {"pose": "tracking_node/pose"},
+    def _subscribe_inputs(self, pipeline: SlamPipeline) -> None:
+        self.activity = Activity(pipeline.idle)
+        self.camera = CameraInputs(self, self.params, self._on_frame, self.activity, {"pose": "tracking_node/pose"},
                                    {"pose": "is tracking_node running?"})  # fmt: skip
         self.create_subscription(PoseStamped, "tracking_node/pose", self._on_pose, output_qos(50))
 
@@ -131,6 +135,7 @@ class MappingNode(Node):
 
     def _pair(self) -> None:
         for stamp in [s for s in self._frames if s in self._poses]:
+            self.activity.begin()
             self.pipeline.submit_job(MapJob(self._frames.pop(stamp), c2w=self._poses.pop(stamp)))
         for queue in (self._frames, self._poses):
             while len(queue) > _PENDING:
@@ -150,6 +155,8 @@ class MappingNode(Node):
         if not self.context.ok():  # shutting down: the publishers are gone
             return
         self.mapped_rate.tick()
+        if self.camera is not None:
+            self.activity.end()
         self.last_mapped_stamp = tracked.stamp_ns
         self._view = _View(tracked.stamp_ns, np.array(tracked.c2w, dtype=np.float64), self.camera_frame())
         self._map_changed()
@@ -176,6 +183,7 @@ class MappingNode(Node):
             labels = np.where(out.silhouette.cpu().numpy() > 0.5, labels, 0)
             depth = out.depth.cpu().numpy().astype(np.float32)
         stamp, frame_id = view.stamp_ns, view.frame_id
+        self.render_info_pub.publish(camera_info_msg(slam.intrinsics, stamp, frame_id))
         self.color_pub.publish(image_msg(color, "rgb8", stamp, frame_id))
         self.semantic_pub.publish(image_msg(slam.codec.table.colorize(labels), "rgb8", stamp, frame_id))
         self.labels_pub.publish(image_msg(labels.astype(np.uint16), "16UC1", stamp, frame_id))
@@ -313,10 +321,14 @@ class MappingNode(Node):
             "locked_classes": " ".join(str(i) for i in sorted(self.pipeline.slam.locked_labels)) or "none",
             "undoable_edits": str(self.pipeline.slam.edits.depth),
             "renders_published": str(self.renders.count),
+            "render_size": "n/a"
+            if self.pipeline.slam.intrinsics is None
+            else f"{self.pipeline.slam.intrinsics.width}x{self.pipeline.slam.intrinsics.height}",
         }
         if self.camera is not None:  # standalone: its own inputs
             silent, warning = self.camera.silence(self.params["stale_input_s"], "nothing mapped")
             values.update(self.camera.counts(st.dropped_frames))
+            values.update(self.camera.sizes())
             values["silent_inputs"] = self.camera.silent_names(silent)
             if warning is not None:
                 level, message = warning

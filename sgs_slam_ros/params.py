@@ -67,9 +67,25 @@ COMMON = (
     ParamSpec("camera_frame", "", "frame id of the camera ('' = header.frame_id of rgb/image)", read_only=True),
     ParamSpec("input_qos", "best_effort", "image subscription QoS", choices=INPUT_QOS_CHOICES, read_only=True),
     ParamSpec("sync_queue_size", 10, "messages kept per input for synchronisation", bounds=(1, 1000), read_only=True),
+    ParamSpec(
+        "input_queue_size",
+        30,
+        "messages each input subscription holds until the node takes them (DDS reader history depth; "
+        "a deeper queue rides out a busy moment instead of losing frames)",
+        bounds=(1, 1000),
+        read_only=True,
+    ),
     ParamSpec("sync_slop_s", 0.02, "max stamp difference of a synchronised set (s); 0 = exact", bounds=(0.0, 1.0)),
     ParamSpec("use_semantics", True, "subscribe semantic/image (class-id labels)", read_only=True),
     ParamSpec("depth_scale", 1000.0, "16UC1 depth units per metre (1000 = mm)", bounds=(1.0, 100000.0)),
+    ParamSpec(
+        "downscale",
+        1.0,
+        "processing size: divide the width and height of colour, depth, labels and camera_info by this "
+        "(as sgs-slam run --downscale; 4 turns 640x480 into 160x120)",
+        bounds=(1.0, 16.0),
+        read_only=True,
+    ),
     ParamSpec(
         "lockstep", False, "process every frame in order (replays, tests); else keep up by dropping", read_only=True
     ),

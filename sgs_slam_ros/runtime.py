@@ -7,10 +7,14 @@ SIGINT and SIGTERM are handled here rather than by rclpy: rclpy's handler shuts 
 once, while a SLAM worker thread may be publishing on it (seen as a SIGSEGV at Ctrl-C). Here a
 signal only stops the spin loop; the nodes' workers are stopped before the context goes. A second
 signal exits at once, without waiting for the workers.
+
+Before ``rclpy.init`` the process's DDS transport is chosen (``--transport shm|default`` before
+``--ros-args``; shm by default: see :mod:`sgs_slam_ros.transport`).
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import signal
 import sys
@@ -23,8 +27,10 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
 
 from sgs_slam_core.errors import SgsSlamError
+from sgs_slam_ros.transport import TRANSPORTS, apply_transport
 
 __all__ = ["USER_ERRORS", "run_nodes", "stop_on_signals"]
 
@@ -67,10 +73,20 @@ def _fail(argv: Sequence[str], err: BaseException) -> int:
     return 1
 
 
+def _transport(argv: Sequence[str]) -> str:
+    """Apply the ``--transport`` option among the non-ROS arguments; returns what was done, in words."""
+    prog = os.path.basename(argv[0]) if argv else "sgs_slam_ros"
+    parser = argparse.ArgumentParser(prog=prog)
+    parser.add_argument("--transport", choices=TRANSPORTS, default="shm",
+                        help="DDS transport: shm (whole frames through shared memory) or default")  # fmt: skip
+    return apply_transport(parser.parse_args(remove_ros_args(list(argv))[1:]).transport)
+
+
 def run_nodes(build: Callable[[], Sequence[Node]], args: Sequence[str] | None = None, threads: int = 4) -> int:
     """Create the nodes with ``build`` and spin them until Ctrl-C or shutdown; returns the exit code."""
     argv = list(args) if args is not None else list(sys.argv)
     try:
+        transport = _transport(argv)
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as err:  # rclpy's RCLError: an unparsable --ros-args rule
         return _fail(argv, err)
@@ -80,6 +96,7 @@ def run_nodes(build: Callable[[], Sequence[Node]], args: Sequence[str] | None = 
     with stop_on_signals(stop.set):
         try:
             nodes = build()
+            nodes[0].get_logger().info(f"transport: {transport}")
             for node in nodes:
                 executor.add_node(node)
             while not stop.is_set() and rclpy.ok():

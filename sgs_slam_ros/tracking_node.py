@@ -10,6 +10,7 @@ Inputs (relative, remappable): ``rgb/image``, ``depth/image``, ``semantic/image`
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections.abc import Callable
@@ -18,6 +19,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from bags.layout import CAMERA_FRAME
@@ -25,8 +27,10 @@ from msg_adapters import AdapterError, gaussians_from_cloud, pointcloud_to_numpy
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.geometry.gravity import FloorSettings, MapAlignment, initial_map_pose, pose_from_xyz_rpy
+from sgs_slam_core.labels import LabelError, LabelTable
 from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.slam.system import Slam, TrackOutcome
+from sgs_slam_ros.activity import Activity
 from sgs_slam_ros.camera_inputs import CameraInputs
 from sgs_slam_ros.diagnostics import OK, WARN, Diagnostics, RateMeter
 from sgs_slam_ros.messages import path_msg, pose_msg
@@ -64,6 +68,7 @@ class TrackingNode(Node):
         except SgsSlamError as err:
             raise ParameterError(f"parameter camera_mount: {err}") from err
         self.alignment = MapAlignment(self.params["map_alignment"])
+        self.alignment_used = ""  # what the first frame of this run chose ("mount (no floor in view)", ...)
         self._aligned = False  # the first pose of this run is chosen (see _align)
         self._remote_map_stamp = -1
         self._last_pose_sent = time.monotonic()
@@ -80,10 +85,14 @@ class TrackingNode(Node):
         else:
             pipeline = SlamPipeline(slam, self.params["lockstep"], track=True, map=True, log=log)
         self.pipeline = pipeline
+        self.activity = Activity(pipeline.idle)
         pipeline.pose_listeners.append(self._on_pose)
+        pipeline.map_listeners.append(lambda *_: self.activity.end())
         self.outputs = RateMeter()
-        self.camera = CameraInputs(self, self.params, self._on_frame, hints=SILENT_HINTS)
+        self.camera = CameraInputs(self, self.params, self._on_frame, self.activity, hints=SILENT_HINTS)
         self.assembler = self.camera.assembler
+        if self.params["use_semantics"]:  # a label source (segmentation_node) names the table of its ids
+            self.create_subscription(String, "semantic/label_table", self._on_label_table, latched_qos())
         self.pose_pub = self.create_publisher(PoseStamped, "~/pose", output_qos(10))
         self.path_pub = self.create_publisher(Path, "~/path", output_qos(1))
         self.tf = TfPublisher(
@@ -102,14 +111,17 @@ class TrackingNode(Node):
         self.create_service(Trigger, "~/reset", self._reset)
         self.diagnostics = Diagnostics(self, self._status)
         mode = "lockstep" if self.params["lockstep"] else "live"
+        size = "input size" if self.params["downscale"] == 1.0 else f"input size / {self.params['downscale']:g}"
         self.get_logger().info(
             f"tracking {', '.join(self.camera.watch.topics.values())} with preset {self.params['preset']} "
-            f"on {pipeline.slam.device} ({mode}); map frame '{self.map_frame}' ({self.alignment.value})"
+            f"on {pipeline.slam.device} ({mode}, processing at {size}); map frame '{self.map_frame}' "
+            f"({self.alignment.value})"
         )
 
     # ------------------------------------------------------------------ inputs
     def _on_frame(self, frame: Frame) -> None:
         self._align(frame)
+        self.activity.begin()
         self.pipeline.submit_frame(frame, time.monotonic())
 
     def _align(self, frame: Frame) -> None:
@@ -122,15 +134,36 @@ class TrackingNode(Node):
         pose, plane = initial_map_pose(self.alignment, frame.depth, frame.intrinsics, self.mount, settings)
         slam.initial_c2w = pose
         self._aligned = True
+        self.alignment_used = self.alignment.value
         log = self.get_logger()
         if self.alignment is MapAlignment.FLOOR and plane is None:
-            log.warn("no floor plane in the first frame: the z-up map assumes camera_mount (a level camera)")
+            self.alignment_used = f"{MapAlignment.MOUNT.value} (no floor in the first frame)"
+            log.warn(
+                "no floor plane in the first frame: map_alignment falls back to 'mount' (the z-up map assumes "
+                "camera_mount, a level camera); /diagnostics says map_alignment: mount"
+            )
         elif plane is not None:
             up = self.mount[:3, :3].T @ [0.0, 0.0, 1.0]
             log.info(
                 f"map frame levelled on the floor: camera {plane.height_m:.2f} m above it, tilted "
                 f"{plane.tilt_deg(up):.1f} deg from camera_mount ({100 * plane.inlier_fraction:.0f} % of the pixels)"
             )
+
+    def _on_label_table(self, msg: String) -> None:
+        """Use the label source's table when the map is still empty; say so when it differs later."""
+        log, slam = self.get_logger(), self.pipeline.slam
+        try:
+            table = LabelTable.from_dict(json.loads(msg.data))
+        except (ValueError, LabelError) as err:
+            self.assembler.reject("bad label table", str(err))
+            return
+        if table == slam.codec.table:
+            log.info(f"label source's table '{table.name}' ({len(table)} classes) is the map's")
+        elif slam.frames_processed == 0 and slam.num_gaussians == 0:
+            slam.codec = slam.codec.with_table(table)
+            log.info(f"labels: using the label source's table '{table.name}' ({len(table)} classes)")
+        else:
+            log.warn(f"the label source's table '{table.name}' differs from the map's; call ~/reset to use it")
 
     def _on_gaussians(self, msg: PointCloud2) -> None:
         try:
@@ -170,6 +203,7 @@ class TrackingNode(Node):
             return
         msg = pose_msg(outcome.c2w, outcome.stamp_ns, self.map_frame)
         self.pose_pub.publish(msg)
+        self.activity.end()
         if self.params["publish_tf"]:
             self.tf.publish(outcome.c2w, outcome.stamp_ns, self.camera_frame())
         self._last_pose_sent = time.monotonic()
@@ -195,6 +229,7 @@ class TrackingNode(Node):
         """Forget this node's per-run state (the pipeline was reset)."""
         self.camera.reset()
         self._aligned = False
+        self.alignment_used = ""
         with self._path_lock:
             self.path.clear()
 
@@ -215,19 +250,23 @@ class TrackingNode(Node):
             "processing_rate_hz": f"{self.outputs.rate():.2f}",
             "latency_ms": f"{1e3 * latency[len(latency) // 2]:.1f}" if latency else "n/a",
             **self.camera.counts(st.dropped_frames),
+            **self.camera.sizes(),
             "frames_tracked": str(st.tracked),
             "tracking_failures": str(st.tracking_failures),
             "gaussians": str(self.pipeline.slam.num_gaussians),
             "silent_inputs": self.camera.silent_names(silent),
             "tf": tf_state if self.tf.available else "off (tf2_msgs missing)",
-            "map_alignment": self.alignment.value,
+            "map_alignment": self.alignment_used or f"{self.alignment.value} (chosen at the first frame)",
             **{f"dropped[{cause}]": str(n) for cause, n in a.rejected.items()},
         }
         return level, message, values
 
     def close(self) -> None:
-        """Stop the workers (this node owns the pipeline)."""
+        """Stop the workers (this node owns the pipeline) and log the run's frame counts."""
         self.pipeline.shutdown()
+        counts = self.camera.counts(self.pipeline.stats.dropped_frames)
+        counts["frames_tracked"] = str(self.pipeline.stats.tracked)
+        self.get_logger().info("final counts: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -127,6 +127,7 @@ class ScanNetDataset(RecordDataset):
                     gt_c2w=pose,
                 )
             )
+        self.left_out = {"frames with non-finite poses": self.skipped}  # reported by the bag converter
         if self.skipped:
             log.info("%s: skipped %d frames with non-finite poses", root, self.skipped)
         super().__init__(records, native, SCANNET_DEPTH_SCALE, LabelTable.nyu40(), options or DatasetOptions())

@@ -180,6 +180,9 @@ class TumDataset(RecordDataset):
         rgb_t, rgb_f = read_stamped_list(root / "rgb.txt", 1)
         depth_t, depth_f = read_stamped_list(root / "depth.txt", 1)
         pairs = associate(rgb_t, depth_t)
+        unpaired = len(rgb_t) - len(pairs)
+        # what the folder lists but the dataset leaves out, and why (the bag converter reports it)
+        self.left_out = {f"colour images without a depth image within {MAX_ASSOCIATION_S * 1e3:.0f} ms": unpaired}
         if not pairs:
             raise DatasetError(f"{root}: no colour/depth pairs within {MAX_ASSOCIATION_S * 1e3:.0f} ms")
         poses: list[np.ndarray | None] = [None] * len(pairs)

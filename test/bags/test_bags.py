@@ -261,3 +261,21 @@ def test_bag_player_lockstep_drives_slam_node(tiny_scene, tmp_path):
         assert [stamp_to_ns(p.header.stamp) for p in poses] == sorted(stamp_to_ns(p.header.stamp) for p in poses)
     finally:
         shut_down(ctx, [*nodes, player], spinner)
+
+
+def test_convert_says_what_it_left_out_and_info_agrees_with_the_metadata(tmp_path, capsys):
+    root = tmp_path / "rgbd_dataset_freiburg1_desk"
+    # the third colour image has no depth image within 20 ms
+    write_tum(root, [1.0, 1.033, 1.066, 1.1], [1.001, 1.034, 1.2, 1.101], [(0.9, 0, 0, 0, 0, 0, 0, 1)])
+    out = tmp_path / "bag"
+    assert bag_main(["convert", str(root), "--out", str(out), "--downscale", "2"]) == 0
+    printed = capsys.readouterr().out
+    assert "wrote 3 frames" in printed
+    assert "left out 1 colour images without a depth image within 20 ms" in printed
+    assert bag_main(["info", str(out)]) == 0
+    described = capsys.readouterr().out
+    table = json.loads(bag_info(out).custom["label_table"])
+    entries = table["classes"]
+    assert f"table '{table['name']}', {len(entries)} class" in described, described
+    assert all(f"{c['id']}:{c['name']}" in described for c in entries)
+    assert open_bag(out).intrinsics.width * 2 == open_dataset(root).intrinsics.width  # --downscale 2

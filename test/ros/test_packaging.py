@@ -18,7 +18,7 @@ from .helpers import new_context, shut_down
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[2]
 SKIP = shutil.ignore_patterns(".*", "build", "install", "log", "runs", "__pycache__", "*.egg-info", "demo_out")
-EXECUTABLES = ("slam_node", "tracking_node", "mapping_node", "bag_player")
+EXECUTABLES = ("slam_node", "tracking_node", "mapping_node", "bag_player", "segmentation_node")
 
 # setup.py install_requires -> the rosdep key package.xml lists for it
 ROSDEP_KEY = {
@@ -55,7 +55,7 @@ def test_colcon_builds_the_package_into_a_workspace(tmp_path):
         assert path.is_file() and os.access(path, os.X_OK), exe
     share = install / "share" / "sgs_slam_ros"
     assert (install / "share" / "ament_index" / "resource_index" / "packages" / "sgs_slam_ros").is_file()
-    for name in ("package.xml", "rviz/sgs_slam.rviz", "config/realsense.yaml"):
+    for name in ("package.xml", "rviz/sgs_slam.rviz", "config/realsense.yaml", "config/fastdds_shm.xml"):
         assert (share / name).is_file(), name
     # the installed entry point runs the installed code (a bad parameter: it answers and exits 1)
     site = next((install / "lib").glob("python3*/site-packages"))

@@ -43,7 +43,7 @@ def test_missing_label_topic_is_reported_once_and_clears(tiny_scene):
         assert len(warnings) == 1, warnings  # once, not once a second
         assert "/semantic/image" in warnings[0] and "use_semantics:=false" in warnings[0]
         # the segmentation node starts: frames flow and the warning clears (stale_input_s is live: longer
-        # than a frame's tracking time now, so the inputs are not silent between lockstep frames)
+        # now, so the camera that stops after two frames is not yet "no input" when the status is read)
         nodes[0].set_parameters([Parameter("stale_input_s", value=5.0)])
         for frame in frames[:2]:
             f = dataclasses.replace(frame, stamp_ns=frame.stamp_ns + i * 10**8)

@@ -1,0 +1,106 @@
+"""Replay benchmark: a bag played at its recorded rate by ``bag_player`` into ``slam_node``, two processes.
+
+Counts what the issue "A live camera that works end to end" measured: colour frames the player sent,
+frames that reached the node (``frames_in``), frames the node counted as lost (``frames_lost``, from
+stamp gaps; the gaps already in the bag, where the camera or the converter left frames out, are
+counted by the same rule and subtracted to give the frames lost in transport) and the node's own
+drops, read from the node's final log line, for each transport (``--transport shm``, the default,
+and Fast DDS's built-in ``default``). The node runs live (not lockstep) at ``--downscale``, so it is
+busy as it would be with a camera.
+
+    python bench/bench_replay_loss.py BAG [--downscale 1] [--preset tum] [--no-append]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bags.layout import BagTopics
+from bags.reader import bag_file, open_index
+from bench.common import append_section, markdown_table
+from sgs_slam_ros.stream_gaps import StreamGaps
+
+REMAPS = ("rgb/image:=/camera/color/image_raw", "depth/image:=/camera/depth/image_raw",
+          "rgb/camera_info:=/camera/color/camera_info", "semantic/image:=/camera/semantic/image_raw")  # fmt: skip
+_COUNT = re.compile(r"(frames_\w+) (\d+)")
+
+
+def recorded_gaps(bag: Path) -> int:
+    """Colour frames missing from the bag itself (the camera's or the converter's), as the node counts them."""
+    index = open_index(bag_file(bag))
+    try:
+        colour = {cid for cid, ch in index.channels.items() if ch.topic == BagTopics().color}
+        gaps = StreamGaps()
+        for ref in sorted((m for m in index.messages if m.channel_id in colour), key=lambda m: m.log_time):
+            gaps.add(ref.stamp_ns)
+        return gaps.lost
+    finally:
+        index.close()
+
+
+def replay(bag: Path, transport: str, downscale: float, preset: str, semantics: bool) -> dict[str, int]:
+    """One replay on a fresh DDS domain; the node's final counts and the frames the player sent."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
+    env.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
+    node = subprocess.Popen(
+        [sys.executable, "-m", "sgs_slam_ros.slam_node", "--transport", transport, "--ros-args",
+         "-p", f"preset:={preset}", "-p", f"use_semantics:={str(semantics).lower()}", "-p", f"downscale:={downscale}",
+         *(a for r in REMAPS for a in ("-r", r))],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    player = subprocess.run([sys.executable, "-m", "sgs_slam_ros.bag_player", str(bag), "--transport", transport,
+                             "--wait", "120"], env=env, capture_output=True, text=True, check=False)  # fmt: skip
+    time.sleep(3.0)  # the last frames' callbacks
+    node.send_signal(signal.SIGINT)
+    log = node.communicate(timeout=300)[0]
+    final = [line for line in log.splitlines() if "final counts:" in line]
+    sent = re.search(r"done: (\d+) frames", player.stderr)
+    if not final or sent is None:
+        raise RuntimeError(f"no counts: player {player.stderr[-500:]} node {log[-1500:]}")
+    counts = {k: int(v) for k, v in _COUNT.findall(final[-1])}
+    counts["sent"] = int(sent.group(1))
+    return counts
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("bag", type=Path)
+    p.add_argument("--downscale", type=float, default=1.0)
+    p.add_argument("--preset", default="tum")
+    p.add_argument("--semantics", action="store_true", help="the bag has label images: subscribe them")
+    p.add_argument("--transports", nargs="+", default=["default", "shm"])
+    p.add_argument("--no-append", action="store_true")
+    args = p.parse_args()
+    rows = []
+    in_bag = recorded_gaps(args.bag)
+    for transport in args.transports:
+        c = replay(args.bag, transport, args.downscale, args.preset, args.semantics)
+        transport_lost = c["frames_lost"] - in_bag
+        uncounted = c["sent"] - c["frames_in"] - transport_lost  # lost after the last frame that arrived
+        rows.append([transport, c["sent"], c["frames_in"], c["frames_lost"], in_bag, transport_lost, uncounted,
+                     c["frames_tracked"], c["frames_dropped"], c["frames_rejected"]])  # fmt: skip
+        print(" | ".join(map(str, rows[-1])), flush=True)
+    header = ["transport", "sent", "frames_in", "frames_lost", "of them gaps in the bag", "lost in transport",
+              "uncounted", "frames_tracked", "frames_dropped", "frames_rejected"]  # fmt: skip
+    table = markdown_table(header, rows)
+    print(table)
+    if not args.no_append:
+        note = (f"`bag_player {args.bag.name}` at its recorded rate into `slam_node` (live, preset {args.preset}, "
+                f"downscale {args.downscale:g}), two processes; the node's final counts")  # fmt: skip
+        append_section("Replay: bag_player into slam_node, frames lost in transport", note + "\n\n" + table)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

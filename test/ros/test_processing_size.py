@@ -1,0 +1,72 @@
+"""The nodes' processing size (``downscale``): colour, depth, labels and intrinsics shrunk as
+``sgs-slam run --downscale`` shrinks a dataset, and outputs that say their size."""
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import CameraInfo, Image
+
+from sgs_slam_core.datasets import DatasetOptions, open_dataset
+from sgs_slam_ros.frames import FrameAssembler
+from sgs_slam_ros.messages import camera_info_msg, image_msg
+from sgs_slam_ros.slam_node import build_slam_nodes
+
+from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, tiny_frames, wait_for
+
+pytestmark = pytest.mark.ros
+
+
+def assemble(frame, downscale: float):
+    out, logs = [], []
+    a = FrameAssembler(True, 10, 0, 1000.0, out.append, logs.append, downscale=downscale)
+    a.camera_info(camera_info_msg(frame.intrinsics, frame.stamp_ns, "cam"))
+    a.image(0, image_msg(frame.rgb, "rgb8", frame.stamp_ns, "cam"))
+    a.image(1, image_msg((frame.depth * 1000).round().astype(np.uint16), "16UC1", frame.stamp_ns, "cam"))
+    a.image(2, image_msg(frame.labels.astype(np.uint16), "16UC1", frame.stamp_ns, "cam"))
+    return a, out, logs
+
+
+def test_frames_are_resized_as_the_dataset_reader_does(tiny_scene):
+    frame = tiny_frames(tiny_scene)[3]
+    a, out, _ = assemble(frame, 2.0)
+    offline = open_dataset(tiny_scene, options=DatasetOptions(downscale=2.0))[3]
+    (got,) = out
+    assert got.intrinsics == offline.intrinsics and got.rgb.shape == (24, 32, 3)
+    assert np.array_equal(got.rgb, offline.rgb) and np.array_equal(got.labels, offline.labels)
+    assert np.allclose(got.depth, offline.depth, atol=5e-4)  # the node's depth came as millimetres
+    assert a.input_size == (64, 48) and a.processing_size == (32, 24)
+
+
+def test_a_downscale_that_leaves_too_small_a_frame_is_rejected_and_counted(tiny_scene):
+    a, out, logs = assemble(tiny_frames(tiny_scene)[0], 4.0)  # 64x48 / 4 = 16x12
+    assert out == [] and a.rejected["downscale leaves too small a frame"] == 1
+    assert "16x12" in logs[0] and "at least 16x16" in logs[0]
+
+
+def test_slam_node_tracks_and_renders_at_the_processing_size(tiny_scene):
+    frames = tiny_frames(tiny_scene)
+    ctx = new_context()
+    nodes = build_slam_nodes(context=ctx, parameter_overrides=node_params(downscale=2.0, render_rate_hz=10.0))
+    feeder = Feeder(ctx)
+    diag, renders, infos = [], [], []
+    feeder.create_subscription(DiagnosticArray, "/diagnostics", diag.append, 50)
+    feeder.create_subscription(Image, "/mapping_node/render/labels", renders.append, 10)
+    feeder.create_subscription(CameraInfo, "/mapping_node/render/camera_info", infos.append, 10)
+    spinner = Spinner(ctx, [*nodes, feeder])
+    try:
+        assert wait_for(feeder.connected, 10.0)
+        for frame in frames[:3]:
+            feeder.publish(frame)
+            assert wait_for(lambda f=frame: f.stamp_ns in feeder.poses, 60.0)
+        assert wait_for(lambda: renders and infos, 10.0)
+        assert (renders[-1].width, renders[-1].height) == (32, 24)
+        assert (infos[-1].width, infos[-1].height) == (32, 24)
+        assert infos[-1].k[0] == pytest.approx(frames[0].intrinsics.fx / 2)
+        assert infos[-1].header.stamp in [r.header.stamp for r in renders]  # each render has its camera_info
+        assert wait_for(lambda: diagnostics_of(diag, "tracking_node") and diagnostics_of(diag, "mapping_node"), 5.0)
+        _, _, v = diagnostics_of(diag, "tracking_node")[-1]
+        assert (v["input_size"], v["processing_size"], v["downscale"]) == ("64x48", "32x24", "2")
+        _, _, m = diagnostics_of(diag, "mapping_node")[-1]
+        assert m["render_size"] == "32x24"
+    finally:
+        shut_down(ctx, [*nodes, feeder], spinner)

@@ -1,0 +1,80 @@
+"""segmentation_node with the real SegFormer class (random weights: nothing is downloaded) into slam_node."""
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("transformers", reason="the optional extra sgs_slam_ros[segmentation] is not installed")
+
+from sensor_msgs.msg import Image, PointCloud2
+from std_msgs.msg import String
+
+from msg_adapters import labels_from_image, pointcloud_to_numpy, stamp_to_ns
+from sgs_slam_core.labels import LabelTable
+from sgs_slam_core.segmentation import SegmentationError, Segmenter
+from sgs_slam_ros.qos import latched_qos
+from sgs_slam_ros.segmentation_node import SegmentationNode
+from sgs_slam_ros.slam_node import build_slam_nodes
+
+from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames, wait_for
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture(scope="module")
+def segmenter():
+    return Segmenter.random(seed=0)
+
+
+def test_segmenter_maps_the_models_classes_to_nyu40(segmenter):
+    rgb = np.random.default_rng(0).integers(0, 255, (48, 64, 3), dtype=np.uint8)
+    ids = segmenter(rgb)
+    assert ids.shape == (48, 64) and ids.dtype == np.uint16
+    ade = segmenter.ade20k_classes(rgb).numpy()
+    assert np.array_equal(ids, segmenter.lut.numpy()[ade])  # every pixel through the documented table
+    with pytest.raises(SegmentationError, match="HxWx3 uint8"):
+        segmenter(rgb[..., 0])
+
+
+def test_unavailable_weights_are_one_clear_line(monkeypatch, tmp_path):
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    with pytest.raises(SegmentationError) as err:
+        Segmenter.from_pretrained(str(tmp_path / "no_such_model"))
+    assert "cannot load the segmentation model" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_labels_carry_the_input_stamp_and_frame_and_slam_node_maps_them(segmenter, tiny_scene):
+    frames = tiny_frames(tiny_scene)
+    ctx = new_context()
+    seg = SegmentationNode(segmenter=segmenter, context=ctx)
+    nodes = build_slam_nodes(context=ctx, parameter_overrides=node_params(points_rate_hz=10.0))
+    feeder = Feeder(ctx)
+    labels, tables, points = [], [], []
+    feeder.create_subscription(Image, "/semantic/image", labels.append, 50)
+    feeder.create_subscription(String, "/semantic/label_table", tables.append, latched_qos())
+    feeder.create_subscription(PointCloud2, "/mapping_node/points", points.append, latched_qos())
+    spinner = Spinner(ctx, [seg, *nodes, feeder])
+    try:
+        assert wait_for(lambda: feeder.connected(subscribers=1) and tables, 10.0)
+        assert LabelTable.from_dict(json.loads(tables[-1].data)) == LabelTable.nyu40()
+        for frame in frames[:3]:  # colour, depth and camera_info only: the labels come from the model
+            feeder.publish(frame, semantic=False)
+            assert wait_for(lambda f=frame: f.stamp_ns in feeder.poses, 60.0)
+        first = labels[0]
+        assert (
+            stamp_to_ns(first.header.stamp) == frames[0].stamp_ns
+            and first.header.frame_id == "camera_color_optical_frame"
+        )
+        assert first.encoding == "16UC1" and (first.width, first.height) == (64, 48)
+        published = {int(i) for m in labels for i in np.unique(labels_from_image(m))}
+        expected = segmenter(frames[0].rgb)
+        assert np.array_equal(labels_from_image(first), expected)
+        assert wait_for(lambda: points and len(pointcloud_to_numpy(points[-1])) > 0, 10.0)
+        in_map = set(np.unique(pointcloud_to_numpy(points[-1])["label"]).tolist()) - {0}
+        assert in_map and in_map <= published, (in_map, published)  # the map's classes are the model's
+        seg.diagnostics.publish()
+        values = {kv.key: kv.value for kv in seg.diagnostics.last_status.values}
+        assert int(values["frames_segmented"]) >= 3 and values["label_table"].startswith("nyu40")
+    finally:
+        shut_down(ctx, [seg, *nodes, feeder], spinner)
