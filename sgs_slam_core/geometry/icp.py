@@ -328,9 +328,9 @@ def _truncated_cost(r: Tensor, inliers: Tensor, valid: Tensor, s: IcpSettings) -
     return torch.where(inliers, r.double().square().clamp(max=cap), cap * valid.double()).sum()
 
 
-def _channel_cost(pose: Tensor, src: Tensor, values: Tensor, ref: IcpLevel, s: IcpSettings) -> Tensor:  # []
-    """The channels' share of the truncated cost at ``pose`` (every usable source channel value)."""
-    _, rc, usable = _channel_rows(_associate(pose, src, ref, s.max_distance_m), values, ref, ref.intrinsics)
+def _channel_cost(a: _Association, values: Tensor, ref: IcpLevel, s: IcpSettings) -> Tensor:  # []
+    """The channels' share of the truncated cost at an association (every usable source channel value)."""
+    _, rc, usable = _channel_rows(a, values, ref, ref.intrinsics)
     cap = (3 * s.huber_m) ** 2
     return torch.where(usable, rc.double().square().clamp(max=cap), 0.0).sum()
 
@@ -398,13 +398,13 @@ def _keep_better(
     start centimetres away, and the finer levels do not bring it back.
     """
     valid_source = points[:, 2] > 0
-    _, _, r0, inliers0 = _correspondences(init, points, ref, s.max_distance_m)
-    _, _, r, inliers = _correspondences(pose, points, ref, s.max_distance_m)
+    a0, a = (_associate(p, points, ref, s.max_distance_m) for p in (init, pose))  # one association each
+    r0, inliers0, r, inliers = a0.residual, a0.inliers, a.residual, a.inliers
     cost0 = _truncated_cost(r0, inliers0, valid_source, s)
     cost = _truncated_cost(r, inliers, valid_source, s)
     if values is not None:
-        cost0 = cost0 + _channel_cost(init, points, values, ref, s)
-        cost = cost + _channel_cost(pose, points, values, ref, s)
+        cost0 = cost0 + _channel_cost(a0, values, ref, s)
+        cost = cost + _channel_cost(a, values, ref, s)
     worse = cost > cost0
     pose, r, inliers = torch.where(worse, init, pose), torch.where(worse, r0, r), torch.where(worse, inliers0, inliers)
     return DeviceAlignment(pose, inliers.sum().double(), (r.double().square() * inliers).sum(),
