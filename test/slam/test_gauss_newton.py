@@ -125,3 +125,37 @@ def test_slam_with_the_gauss_newton_tracker_follows_the_tiny_scene(tiny_scene):
         errors.append(np.linalg.norm(step.c2w[:3, 3] - slam._gt_in_map_frame(tiny[i].gt_c2w)[:3, 3]))
     assert max(errors) < 0.09 and np.mean(errors) < 0.06, errors
     assert step.tracking.renders == 2 and step.tracking.iterations == 3  # one 64-pixel level: 3 steps
+
+
+def test_the_compiled_step_matches_the_pytorch_reference():
+    """Normal equations and truncated cost of cpu/gauss_newton.cpp against geometry/icp.py's tensors."""
+    from sgs_slam_core.geometry import icp
+    from sgs_slam_core.geometry.icp_native import EXTENSION
+
+    if not EXTENSION.is_available():
+        pytest.skip(EXTENSION.unavailable_reason())
+    gm, frame = target_frame()
+    k = frame.intrinsics
+    with torch.no_grad():
+        out = render(gm, k, se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.01, 0.0, 0.02])), SETTINGS)
+    confident = out.silhouette > 0.99
+    luma = torch.tensor([0.3, 0.6, 0.1])
+    channels = torch.stack([out.color @ luma, out.semantic[..., 0]], dim=-1) * 0.1  # [H, W, 2]
+    ref = icp.icp_pyramid(torch.where(confident, out.depth, 0.0), k, 1)[0]
+    ref = ref.with_channels(icp.channel_pyramid(channels, confident, 1)[0])
+    points = icp.vertex_map(frame.depth, k).reshape(-1, 3)
+    values = icp.source_channels(torch.stack([frame.rgb @ luma, frame.semantic[..., 0]], dim=-1) * 0.1, 1)[0]
+    s = icp.IcpSettings(max_distance_m=0.2)
+    pose = se3_exp(torch.tensor([0.005, 0.0, 0.0, 0.0, 0.01, 0.0], dtype=torch.float64))
+    depth_only = icp.IcpLevel(ref.intrinsics, ref.packed[:, :7])
+    for level, vals in ((depth_only, None), (ref, values)):
+        terms = icp._terms(EXTENSION.module(), pose, points, vals, level, s)
+        normal = icp._normal_matrix(pose, points, level, s, vals)
+        assert torch.allclose(terms[:49].reshape(7, 7), normal, rtol=1e-4, atol=1e-6 * float(normal.abs().max()))
+        a = icp._associate(pose, points, level, s.max_distance_m)
+        cost = icp._truncated_cost(a.residual, a.inliers, points[:, 2] > 0, s)
+        if vals is not None:
+            cost = cost + icp._channel_cost(a, vals, level, s)
+        assert a.inliers.sum() > 500 and terms[50] == a.inliers.sum() and terms[52] == (points[:, 2] > 0).sum()
+        assert torch.allclose(terms[49], cost, rtol=1e-5)
+        assert torch.allclose(terms[51], (a.residual.double().square() * a.inliers).sum(), rtol=1e-5)
