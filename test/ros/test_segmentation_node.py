@@ -44,14 +44,15 @@ def test_unavailable_weights_are_one_clear_line(monkeypatch, tmp_path):
     assert "cannot load the segmentation model" in str(err.value) and "\n" not in str(err.value)
 
 
-def test_labels_carry_the_input_stamp_and_frame_and_slam_node_maps_them(segmenter, tiny_scene):
+def test_labels_carry_the_input_stamp_and_frame_and_reach_the_map_and_its_renders(segmenter, tiny_scene):
     frames = tiny_frames(tiny_scene)
     ctx = new_context()
     seg = SegmentationNode(segmenter=segmenter, context=ctx)
-    nodes = build_slam_nodes(context=ctx, parameter_overrides=node_params(points_rate_hz=10.0))
+    nodes = build_slam_nodes(context=ctx, parameter_overrides=node_params(points_rate_hz=10.0, render_rate_hz=30.0))
     feeder = Feeder(ctx)
-    labels, tables, points = [], [], []
+    labels, tables, points, rendered = [], [], [], []
     feeder.create_subscription(Image, "/semantic/image", labels.append, 50)
+    feeder.create_subscription(Image, "/mapping_node/render/labels", rendered.append, 50)
     feeder.create_subscription(String, "/semantic/label_table", tables.append, latched_qos())
     feeder.create_subscription(PointCloud2, "/mapping_node/points", points.append, latched_qos())
     spinner = Spinner(ctx, [seg, *nodes, feeder])
@@ -73,6 +74,18 @@ def test_labels_carry_the_input_stamp_and_frame_and_slam_node_maps_them(segmente
         assert wait_for(lambda: points and len(pointcloud_to_numpy(points[-1])) > 0, 10.0)
         in_map = set(np.unique(pointcloud_to_numpy(points[-1])["label"]).tolist()) - {0}
         assert in_map and in_map <= published, (in_map, published)  # the map's classes are the model's
+        assert wait_for(lambda: rendered, 10.0)
+        view = rendered[-1]
+        model = {stamp_to_ns(m.header.stamp): labels_from_image(m) for m in labels}[stamp_to_ns(view.header.stamp)]
+        drawn = labels_from_image(view)
+        seen = drawn > 0
+        assert seen.mean() > 0.5 and set(np.unique(drawn[seen]).tolist()) <= published
+        # the rendered classes are the model's labels of that frame, pixel by pixel, far above chance (the
+        # agreement of two unrelated images with these class frequencies); random weights give noisy labels
+        agree = (drawn[seen] == model[seen]).mean()
+        classes = np.union1d(drawn[seen], model[seen])
+        chance = sum((drawn[seen] == c).mean() * (model[seen] == c).mean() for c in classes)
+        assert agree > 1.5 * chance, (agree, chance)
         seg.diagnostics.publish()
         values = {kv.key: kv.value for kv in seg.diagnostics.last_status.values}
         assert int(values["frames_segmented"]) >= 3 and values["label_table"].startswith("nyu40")
