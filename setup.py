@@ -49,6 +49,7 @@ setup(
         "test": ["pytest>=8", "ruff>=0.6", "evo>=1.28", "colcon-core", "colcon-ros", "catkin_pkg", *VIEWER],
     },
     entry_points={
+        "sgs_slam_core.dataset_formats": ["mcap = bags.format:MCAP_FORMAT"],
         "console_scripts": [
             "sgs-slam = sgs_slam_core.cli:main",
             "sgs-slam-bag = bags.cli:main",

@@ -18,7 +18,7 @@ from msg_adapters import AdapterError
 from sgs_slam_core.cli import add_debug_flag, run_command
 from sgs_slam_core.cli.args import IntRange
 from sgs_slam_core.cli.run import default_preset
-from sgs_slam_core.datasets import FORMATS, DatasetOptions, open_dataset
+from sgs_slam_core.datasets import DatasetOptions, formats, open_dataset
 from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.runner.progress import ProgressBar
 
@@ -73,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     c = sub.add_parser("convert", help="write a dataset folder as a rosbag2 MCAP bag")
     c.add_argument("input", type=Path, help="TUM, Replica, ScanNet or synthetic folder")
-    c.add_argument("--format", default="auto", choices=["auto", *(f for f in FORMATS if f != "mcap")])
+    c.add_argument("--format", default="auto", choices=["auto", *(f for f in formats() if f != "mcap")])
     c.add_argument("--out", type=Path, help="bag folder to create (default: INPUT_bag); never overwritten")
     c.add_argument("--max-frames", type=_FRAMES, help=f"convert at most N frames ({_FRAMES.bounds})")
     c.add_argument(

@@ -1,13 +1,10 @@
-"""Topic names and frame ids of the bags we write (names users know from realsense-ros)."""
+"""Topic names of the bags we write (names users know from realsense-ros)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["CAMERA_FRAME", "MAP_FRAME", "BagTopics"]
-
-CAMERA_FRAME = "camera_color_optical_frame"
-MAP_FRAME = "map"
+__all__ = ["BagTopics"]
 
 
 @dataclass(frozen=True)

@@ -25,12 +25,13 @@ from rosbags.typesys import Stores, get_typestore
 
 from bags import rosbags_messages as rm
 from bags.errors import BagError
-from bags.layout import CAMERA_FRAME, MAP_FRAME, BagTopics
+from bags.layout import BagTopics
 from bags.preset import preset_metadata
 from msg_adapters import c2w_to_pose, camera_info_fields, image_fields
 from msg_adapters.stamps import ns_to_stamp
 from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.frame import Frame
+from sgs_slam_core.frame_ids import CAMERA_FRAME, MAP_FRAME
 
 __all__ = ["DEPTH_UNITS_PER_M", "ConvertSummary", "convert"]
 

@@ -64,7 +64,7 @@ def main() -> None:
             total = time.perf_counter() - t0
             poses.append(step.c2w)
             gts.append(frame.gt_c2w)
-            _reply({"track_s": step.track_time_s, "map_s": step.map_time_s, "total_s": total,
+            _reply({"track_s": step.track.time_s, "map_s": step.map.time_s, "total_s": total,
                     "gaussians": slam.num_gaussians})  # fmt: skip
         elif cmd.get("finish"):
             pairs = [(p, g) for p, g in zip(poses, gts, strict=True) if g is not None]

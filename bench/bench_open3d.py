@@ -83,7 +83,7 @@ def main() -> None:
         config = load_config(preset, None, [*args.overrides, "device=cpu"])
         out = Path(tempfile.mkdtemp(prefix="bench_open3d_"))
         result = run_offline(dataset, config, out, overwrite=True, provenance={"bench": True}, show_progress=False)
-        track = [s.track_time_s * 1e3 for s in result.steps[1:]]
+        track = [s.track.time_s * 1e3 for s in result.steps[1:]]
         name = f"this SLAM, tracking.method={config.tracking.method} (preset {preset})"
         rows.append([name, f"{np.median(track):.1f}", f"{np.mean(track):.1f}",
                      f"{result.metrics['ate_rmse_m'] * 100:.2f}"])  # fmt: skip

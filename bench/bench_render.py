@@ -1,6 +1,6 @@
 """Renderer benchmark: forward + backward time, memory and throughput per backend.
 
-Scene (as shared/reference/RENDERER.md section 5): N isotropic Gaussians uniform in a 3 x 2.2 x 1.5 m
+Scene: N isotropic Gaussians uniform in a 3 x 2.2 x 1.5 m
 box 2-3.5 m in front of the camera, radii 2-6 cm, random opacities, 3 colour + 3 semantic channels,
 fx = fy = 0.9 W. Loss over every channel; gradients to all Gaussian parameters and the pose.
 

@@ -60,9 +60,9 @@ def _percentile(values: list[float], q: float) -> float:
 def summary_rows(result: RunResult, dataset: Dataset, preset: str) -> list[list[object]]:
     """One row per run: the columns of the results table."""
     steps, m = result.steps, result.metrics
-    track = [s.track_time_s * 1e3 for s in steps]
-    total = [(s.track_time_s + s.map_time_s) * 1e3 for s in steps]
-    iters = [s.tracking.iterations for s in steps if s.tracking is not None]
+    track = [s.track.time_s * 1e3 for s in steps]
+    total = [(s.track.time_s + s.map.time_s) * 1e3 for s in steps]
+    iters = [s.track.result.iterations for s in steps if s.track.result is not None]
     k = dataset.intrinsics
 
     def cm(key: str) -> str:
@@ -92,8 +92,8 @@ SUMMARY_HEADERS = ["input", "size", "preset", "device", "mode: tracked/in", "tra
 def timing_plot(path: Path, result: RunResult, title: str) -> None:
     """Time per frame (tracking, mapping, total) over one panel, Gaussian count under it."""
     steps = result.steps
-    track = np.array([s.track_time_s * 1e3 for s in steps])
-    mapping = np.array([s.map_time_s * 1e3 for s in steps])
+    track = np.array([s.track.time_s * 1e3 for s in steps])
+    mapping = np.array([s.map.time_s * 1e3 for s in steps])
     times = [Series("tracking", track, (200, 90, 30)), Series("mapping", mapping, (40, 140, 40)),
              Series("total", track + mapping, (0, 0, 0))]  # fmt: skip
     count = [Series("Gaussians (k)", np.array([s.num_gaussians / 1e3 for s in steps]), (30, 30, 200))]

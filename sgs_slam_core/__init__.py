@@ -19,6 +19,7 @@ from sgs_slam_core.geometry import Intrinsics
 from sgs_slam_core.labels import LabelClass, LabelTable
 from sgs_slam_core.render import RenderOutput, RenderSettings, render
 from sgs_slam_core.semantics import SemanticCodec, SemanticSettings
+from sgs_slam_core.slam.system import Slam, StepResult
 
 __version__ = "0.1.0"
 
@@ -39,7 +40,9 @@ __all__ = [
     "SemanticSettings",
     "SgsSlamError",
     "ShapeError",
+    "Slam",
     "SlamConfig",
+    "StepResult",
     "__version__",
     "load_config",
     "render",

@@ -1,4 +1,4 @@
-"""The RGB-D(+labels) frame every reader, adapter and node hands to the core."""
+"""The RGB-D(+labels) frame every reader, adapter and node hands to the core, and its compact stored form."""
 
 from __future__ import annotations
 
@@ -9,7 +9,9 @@ import numpy as np
 from sgs_slam_core.errors import FrameError
 from sgs_slam_core.geometry.camera import Intrinsics
 
-__all__ = ["Frame"]
+__all__ = ["DEPTH_UNITS_PER_M", "CompactFrame", "Frame", "compact_labels"]
+
+DEPTH_UNITS_PER_M = 5000.0  # compact depth: uint16 in 0.2 mm steps, up to 13.1 m
 
 
 @dataclass(frozen=True)
@@ -64,3 +66,43 @@ class Frame:
     def has_labels(self) -> bool:
         """True when a label image is attached."""
         return self.labels is not None
+
+
+def compact_labels(labels: np.ndarray) -> np.ndarray:  # [H, W] uint8, uint16 or int32
+    """Class ids in the smallest integer type that holds them (uint8 for NYU40 or Replica ids)."""
+    if labels.size == 0 or (labels.min() >= 0 and labels.max() < 2**8):
+        return labels.astype(np.uint8)
+    if labels.min() >= 0 and labels.max() < 2**16:
+        return labels.astype(np.uint16)
+    return labels.astype(np.int32)
+
+
+@dataclass
+class CompactFrame:
+    """A keyframe kept on the host: uint8 colour, uint16 depth (0.2 mm), compact labels, its pose."""
+
+    index: int
+    stamp_ns: int
+    intrinsics: Intrinsics
+    rgb: np.ndarray  # [H, W, 3] uint8
+    depth: np.ndarray  # [H, W] uint16, DEPTH_UNITS_PER_M per metre
+    labels: np.ndarray | None  # [H, W] uint8 (ids < 256), uint16 (< 65536) or int32
+    w2c: np.ndarray  # [4, 4] float64, the estimate at insertion (not refined later, as the reference)
+
+    @staticmethod
+    def from_frame(frame: Frame, w2c: np.ndarray) -> CompactFrame:
+        """Compress a frame (depth beyond 13.1 m becomes invalid)."""
+        units = np.round(frame.depth * DEPTH_UNITS_PER_M)
+        depth = np.where(units <= 65535, units, 0).astype(np.uint16)
+        return CompactFrame(frame.index, frame.stamp_ns, frame.intrinsics, frame.rgb.copy(), depth,
+                            None if frame.labels is None else compact_labels(frame.labels), w2c.copy())  # fmt: skip
+
+    @property
+    def depth_m(self) -> np.ndarray:  # [H, W] float32
+        """Depth in metres."""
+        return self.depth.astype(np.float32) / np.float32(DEPTH_UNITS_PER_M)
+
+    @property
+    def nbytes(self) -> int:
+        """Host memory held by this keyframe."""
+        return self.rgb.nbytes + self.depth.nbytes + (self.labels.nbytes if self.labels is not None else 0)

@@ -1,6 +1,6 @@
 """Semantic channel encodings: label images <-> per-pixel semantic features.
 
-Two modes (DESIGN.md):
+Two modes:
 
 * ``color`` - paper-faithful: S = 3, the target is the class's palette colour in [0, 1]; decoding
   snaps a rendered colour to the nearest class colour.

@@ -28,11 +28,11 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_srvs.srv import SetBool, Trigger
 
-from bags.layout import CAMERA_FRAME
 from msg_adapters import AdapterError, gaussians_to_cloud, pack_rgb, pose_to_c2w, stamp_to_ns
 from msg_adapters.pointcloud import POINT_DTYPE
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
+from sgs_slam_core.frame_ids import CAMERA_FRAME
 from sgs_slam_core.live import MapJob, SlamPipeline
 from sgs_slam_core.mapio import load_map, save_map
 from sgs_slam_core.slam.footprint import footprint
@@ -140,7 +140,7 @@ class MappingNode(Node):
         for queue in (self._frames, self._poses):
             while len(queue) > _PENDING:
                 queue.popitem(last=False)
-                self.pipeline.stats.dropped_frames += 1
+                self.pipeline.count_dropped()
 
     # ------------------------------------------------------------------ outputs
     def camera_frame(self) -> str:
@@ -171,28 +171,28 @@ class MappingNode(Node):
 
     def publish_renders(self) -> bool:
         """Render the map from the newest mapped frame's pose; publish colour, semantics, labels, depth."""
-        slam, view = self.pipeline.slam, self._view
-        if view is None or slam.num_gaussians == 0 or slam.intrinsics is None:
+        snap, view = self.pipeline.snapshot(), self._view
+        if view is None or len(snap.gaussians) == 0 or snap.intrinsics is None:
             return False
         with self._render_lock, torch.no_grad():
-            out = slam.render_view(view.c2w)
+            out = self.pipeline.render_view(snap, view.c2w)
             color = (out.color.clamp(0, 1) * 255).round().to(torch.uint8).cpu().numpy()
             labels = (
-                slam.decode(out.semantic).cpu().numpy() if out.semantic.shape[-1] else np.zeros(color.shape[:2], int)
+                snap.decode(out.semantic).cpu().numpy() if out.semantic.shape[-1] else np.zeros(color.shape[:2], int)
             )
             labels = np.where(out.silhouette.cpu().numpy() > 0.5, labels, 0)
             depth = out.depth.cpu().numpy().astype(np.float32)
         stamp, frame_id = view.stamp_ns, view.frame_id
-        self.render_info_pub.publish(camera_info_msg(slam.intrinsics, stamp, frame_id))
+        self.render_info_pub.publish(camera_info_msg(snap.intrinsics, stamp, frame_id))
         self.color_pub.publish(image_msg(color, "rgb8", stamp, frame_id))
-        self.semantic_pub.publish(image_msg(slam.codec.table.colorize(labels), "rgb8", stamp, frame_id))
+        self.semantic_pub.publish(image_msg(snap.codec.table.colorize(labels), "rgb8", stamp, frame_id))
         self.labels_pub.publish(image_msg(labels.astype(np.uint16), "16UC1", stamp, frame_id))
         self.depth_pub.publish(image_msg(depth, "32FC1", stamp, frame_id))
         return True
 
     def points(self) -> np.ndarray:
         """The map as coloured, labelled points (every Gaussian centre, subsampled to ``points_max``)."""
-        g = self.pipeline.slam.gaussians.detach().to("cpu")
+        g = self.pipeline.snapshot().gaussians.detach().to("cpu")
         step = max(1, int(np.ceil(len(g) / self.params["points_max"])))
         pts = np.zeros(len(range(0, len(g), step)), dtype=POINT_DTYPE)
         means = g.means[::step].float().numpy()
@@ -208,7 +208,7 @@ class MappingNode(Node):
 
     def publish_gaussians(self) -> bool:
         """Publish the whole map on ``~/gaussians`` (stamp = the last mapped frame)."""
-        cloud = gaussians_to_cloud(self.pipeline.slam.gaussians)
+        cloud = gaussians_to_cloud(self.pipeline.snapshot().gaussians)
         self.gaussians_pub.publish(pointcloud_msg(cloud, self._stamp(), self.map_frame))
         return True
 

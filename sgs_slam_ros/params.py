@@ -121,6 +121,7 @@ TRACKING = (
         30.0,
         "floor levelling: max angle between the floor and camera_mount's up (deg)",
         bounds=(1.0, 89.0),
+        read_only=True,
     ),
     ParamSpec("publish_tf", True, "publish /tf (map -> camera, or map -> odom -> base_frame) and /tf_static"),
     ParamSpec(
@@ -244,6 +245,9 @@ class NodeParams:
     def __getitem__(self, name: str) -> Any:
         return self.values[name]
 
+    def __contains__(self, name: object) -> bool:
+        return name in self.values
+
     def _validate(self, params: list[Parameter]) -> SetParametersResult:
         for p in params:
             spec = self.specs.get(p.name)
@@ -272,7 +276,12 @@ def declare(node: Node, specs: tuple[ParamSpec, ...]) -> NodeParams:
 
 
 def slam_config(values: NodeParams) -> SlamConfig:
-    """The core config from the node's parameters (preset, file, overrides, device)."""
-    return load_config(
-        values["preset"], values["config_file"] or None, [*values["overrides"], f"device={values['device']}"]
-    )
+    """The core config from the node's parameters (preset, file, overrides, device, and a tracker's map frame)."""
+    overrides = [*values["overrides"], f"device={values['device']}"]
+    if "map_alignment" in values:  # the tracking node's parameters choose the map frame
+        overrides += [
+            f"map_frame.alignment={values['map_alignment']}",
+            f"map_frame.camera_mount={list(values['camera_mount'])}",
+            f"map_frame.floor_max_tilt_deg={values['floor_max_tilt_deg']}",
+        ]
+    return load_config(values["preset"], values["config_file"] or None, overrides)

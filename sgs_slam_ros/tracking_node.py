@@ -22,14 +22,16 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from bags.layout import CAMERA_FRAME
 from msg_adapters import AdapterError, gaussians_from_cloud, pointcloud_to_numpy, stamp_to_ns
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
-from sgs_slam_core.geometry.gravity import FloorSettings, MapAlignment, initial_map_pose, pose_from_xyz_rpy
+from sgs_slam_core.frame_ids import CAMERA_FRAME
+from sgs_slam_core.geometry.gravity import MapAlignment, pose_from_xyz_rpy
 from sgs_slam_core.labels import LabelError, LabelTable
 from sgs_slam_core.live import SlamPipeline
-from sgs_slam_core.slam.system import Slam, TrackOutcome
+from sgs_slam_core.slam.map_frame import MapFrameChoice
+from sgs_slam_core.slam.outcomes import TrackOutcome
+from sgs_slam_core.slam.system import Slam
 from sgs_slam_ros.activity import Activity
 from sgs_slam_ros.camera_inputs import CameraInputs
 from sgs_slam_ros.diagnostics import OK, WARN, Diagnostics, RateMeter
@@ -69,7 +71,6 @@ class TrackingNode(Node):
             raise ParameterError(f"parameter camera_mount: {err}") from err
         self.alignment = MapAlignment(self.params["map_alignment"])
         self.alignment_used = ""  # what the first frame of this run chose ("mount (no floor in view)", ...)
-        self._aligned = False  # the first pose of this run is chosen (see _align)
         self._remote_map_stamp = -1
         self._last_pose_sent = time.monotonic()
         self.reset_listeners: list[Callable[[], None]] = []  # e.g. the composed mapping node's outputs
@@ -120,47 +121,37 @@ class TrackingNode(Node):
 
     # ------------------------------------------------------------------ inputs
     def _on_frame(self, frame: Frame) -> None:
-        self._align(frame)
         self.activity.begin()
         self.pipeline.submit_frame(frame, time.monotonic())
 
-    def _align(self, frame: Frame) -> None:
-        """Before the first frame of a run: choose its pose, and so the map frame (``map_alignment``)."""
-        slam = self.pipeline.slam
-        if self._aligned or slam.frames_processed > 0 or slam.num_gaussians > 0:
-            self._aligned = True  # a loaded map keeps its own frame
-            return
-        settings = FloorSettings(max_tilt_deg=self.params["floor_max_tilt_deg"])
-        pose, plane = initial_map_pose(self.alignment, frame.depth, frame.intrinsics, self.mount, settings)
-        slam.initial_c2w = pose
-        self._aligned = True
-        self.alignment_used = self.alignment.value
+    def _report_map_frame(self, choice: MapFrameChoice) -> None:
+        """Say how the run's first frame set the map frame (``map_alignment``), as /diagnostics will."""
+        self.alignment_used = choice.alignment
         log = self.get_logger()
-        if self.alignment is MapAlignment.FLOOR and plane is None:
-            self.alignment_used = f"{MapAlignment.MOUNT.value} (no floor in the first frame)"
+        if self.alignment is MapAlignment.FLOOR and choice.floor is None:
             log.warn(
                 "no floor plane in the first frame: map_alignment falls back to 'mount' (the z-up map assumes "
                 "camera_mount, a level camera); /diagnostics says map_alignment: mount"
             )
-        elif plane is not None:
+        elif choice.floor is not None:
             up = self.mount[:3, :3].T @ [0.0, 0.0, 1.0]
             log.info(
-                f"map frame levelled on the floor: camera {plane.height_m:.2f} m above it, tilted "
-                f"{plane.tilt_deg(up):.1f} deg from camera_mount ({100 * plane.inlier_fraction:.0f} % of the pixels)"
+                f"map frame levelled on the floor: camera {choice.floor.height_m:.2f} m above it, tilted "
+                f"{choice.floor.tilt_deg(up):.1f} deg from camera_mount "
+                f"({100 * choice.floor.inlier_fraction:.0f} % of the pixels)"
             )
 
     def _on_label_table(self, msg: String) -> None:
         """Use the label source's table when the map is still empty; say so when it differs later."""
-        log, slam = self.get_logger(), self.pipeline.slam
+        log = self.get_logger()
         try:
             table = LabelTable.from_dict(json.loads(msg.data))
         except (ValueError, LabelError) as err:
             self.assembler.reject("bad label table", str(err))
             return
-        if table == slam.codec.table:
+        if table == self.pipeline.snapshot().codec.table:
             log.info(f"label source's table '{table.name}' ({len(table)} classes) is the map's")
-        elif slam.frames_processed == 0 and slam.num_gaussians == 0:
-            slam.codec = slam.codec.with_table(table)
+        elif self.pipeline.use_label_table(table):
             log.info(f"labels: using the label source's table '{table.name}' ({len(table)} classes)")
         else:
             log.warn(f"the label source's table '{table.name}' differs from the map's; call ~/reset to use it")
@@ -168,7 +159,7 @@ class TrackingNode(Node):
     def _on_gaussians(self, msg: PointCloud2) -> None:
         try:
             gaussians = gaussians_from_cloud(pointcloud_to_numpy(msg))
-            self.pipeline.slam.set_map(gaussians)
+            self.pipeline.replace_map(gaussians)
         except (AdapterError, SgsSlamError) as err:
             self.assembler.reject("bad map message", str(err))
             return
@@ -182,8 +173,8 @@ class TrackingNode(Node):
         a second: a mapper whose subscription was matched only after the first publication (DDS
         discovery under load) would otherwise never map that frame, and both nodes would wait forever.
         """
-        trajectory = self.pipeline.slam.trajectory
-        ready = frames_tracked == 0 or self._remote_map_stamp >= trajectory[-1][1]
+        last = self.pipeline.snapshot().last_stamp_ns
+        ready = frames_tracked == 0 or last is None or self._remote_map_stamp >= last
         now = time.monotonic()
         if not ready and now - self._last_pose_sent >= _REPUBLISH_S:
             with self._path_lock:
@@ -201,6 +192,8 @@ class TrackingNode(Node):
     def _on_pose(self, frame: Frame, outcome: TrackOutcome) -> None:
         if not self.context.ok():  # shutting down: the publishers are gone
             return
+        if outcome.map_frame is not None:
+            self._report_map_frame(outcome.map_frame)
         msg = pose_msg(outcome.c2w, outcome.stamp_ns, self.map_frame)
         self.pose_pub.publish(msg)
         self.activity.end()
@@ -228,7 +221,6 @@ class TrackingNode(Node):
     def after_reset(self) -> None:
         """Forget this node's per-run state (the pipeline was reset)."""
         self.camera.reset()
-        self._aligned = False
         self.alignment_used = ""
         with self._path_lock:
             self.path.clear()
@@ -253,7 +245,7 @@ class TrackingNode(Node):
             **self.camera.sizes(),
             "frames_tracked": str(st.tracked),
             "tracking_failures": str(st.tracking_failures),
-            "gaussians": str(self.pipeline.slam.num_gaussians),
+            "gaussians": str(len(self.pipeline.snapshot().gaussians)),
             "silent_inputs": self.camera.silent_names(silent),
             "tf": tf_state if self.tf.available else "off (tf2_msgs missing)",
             "map_alignment": self.alignment_used or f"{self.alignment.value} (chosen at the first frame)",

@@ -1,4 +1,4 @@
-"""The dependency rule of DESIGN.md: only sgs_slam_ros may import rclpy; the core never compiles."""
+"""The dependency rule: only sgs_slam_ros may import rclpy; the core never compiles on import."""
 
 import subprocess
 import sys

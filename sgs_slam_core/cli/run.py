@@ -9,7 +9,7 @@ from pathlib import Path
 from sgs_slam_core.cli.args import FloatRange, IntRange
 from sgs_slam_core.cli.viewer_args import add_viewer_arguments, start_viewer, viewer_options_from_args
 from sgs_slam_core.config import list_presets, load_config
-from sgs_slam_core.datasets import FORMATS, Dataset, DatasetOptions, detect_format, open_dataset
+from sgs_slam_core.datasets import Dataset, DatasetOptions, dataset_format, formats, open_dataset
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.runner import format_table, run_offline
 from sgs_slam_core.runner.outputs import check_run_dir
@@ -60,7 +60,7 @@ def camera_rate(text: str) -> float | str:
 
 def add_dataset_arguments(p: argparse.ArgumentParser) -> None:
     """Format and frame-selection options shared by run and eval."""
-    p.add_argument("--format", default="auto", choices=["auto", *FORMATS], help="dataset format (default: detect)")
+    p.add_argument("--format", default="auto", choices=["auto", *formats()], help="dataset format (default: detect)")
     p.add_argument("--max-frames", type=IntRange(1), help="process at most N frames (>= 1)")
     p.add_argument("--stride", type=IntRange(1), default=1, help="use every K-th frame (>= 1)")
     p.add_argument("--start", type=IntRange(0), default=0, help="first frame (>= 0)")
@@ -83,28 +83,12 @@ def parse_topics(items: list[str]) -> dict[str, str]:
 
 def open_input(path: Path, fmt: str, options: DatasetOptions, topics: dict[str, str] | None = None) -> Dataset:
     """Open a dataset folder or bag; ``topics`` (bags only) rename the streams."""
-    if not topics:
-        return open_dataset(path, fmt, options)
-    if (detect_format(path) if fmt == "auto" else fmt) != "mcap":
-        raise DatasetError("--topic applies to MCAP bags only")
-    from bags import BagTopics, open_bag  # noqa: PLC0415 - bags depends on the core, not the reverse
-
-    return open_bag(path, options, BagTopics(**topics))
+    return open_dataset(path, fmt, options, topics)
 
 
 def default_preset(path: Path, fmt: str) -> str:
-    """The preset matching a dataset: synthetic scenes (synthetic.yaml present) get ``synthetic``.
-
-    A bag converted by ``sgs-slam-bag`` carries its folder's preset in its metadata.
-    """
-    name = detect_format(path) if fmt == "auto" else fmt
-    if name == "mcap":
-        from bags.preset import read_bag_preset  # noqa: PLC0415 - bags depends on the core, not the reverse
-
-        return read_bag_preset(path) or "tum"
-    if name == "replica" and (path / "synthetic.yaml").is_file():
-        return "synthetic"
-    return {"tum": "tum", "scannet": "scannet", "replica": "replica"}.get(name, "tum")
+    """The preset matching a dataset (synthetic scenes get ``synthetic``; a converted bag its folder's)."""
+    return dataset_format(path, fmt).preset(path)
 
 
 def run(args: argparse.Namespace) -> int:

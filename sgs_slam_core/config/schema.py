@@ -3,19 +3,21 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import ClassVar, Literal
 
-from sgs_slam_core.errors import ConfigError
-from sgs_slam_core.render.settings import RenderSettings
-from sgs_slam_core.semantics import SemanticSettings
-from sgs_slam_core.slam.settings import (
+from sgs_slam_core.config.sections import (
     DensifySettings,
     GuardSettings,
     KeyframeSettings,
     LiveSettings,
+    MapFrameSettings,
     MappingSettings,
+    MotionSettings,
     TrackingSettings,
 )
+from sgs_slam_core.errors import ConfigError
+from sgs_slam_core.render.settings import RenderSettings
+from sgs_slam_core.semantics import SemanticSettings
 
 __all__ = ["DeviceName", "SlamConfig"]
 
@@ -32,6 +34,8 @@ class SlamConfig:
         eval_every: offline evaluation renders frame 0 and every frame with (t + 1) % eval_every == 0.
     """
 
+    map_frame: MapFrameSettings = field(default_factory=MapFrameSettings)
+    motion: MotionSettings = field(default_factory=MotionSettings)
     tracking: TrackingSettings = field(default_factory=TrackingSettings)
     mapping: MappingSettings = field(default_factory=MappingSettings)
     densify: DensifySettings = field(default_factory=DensifySettings)
@@ -43,6 +47,12 @@ class SlamConfig:
     device: DeviceName = "auto"
     seed: int = 0
     eval_every: int = 5
+
+    # keys of earlier versions and where they live now (config files and saved maps keep working)
+    MOVED_KEYS: ClassVar[dict[str, str]] = {
+        f"tracking.{key}": f"motion.{key}"
+        for key in ("constant_velocity", "icp_iterations", "icp_max_distance_m", "icp_min_inliers", "icp_min_gap")
+    }
 
     def __post_init__(self) -> None:
         if self.seed < 0:

@@ -19,9 +19,13 @@ then that frame is tracked. So every tracked frame is in the map the next one is
 against, and a slow machine tracks fewer frames rather than tracking against a stale map.
 On CUDA the mapping thread runs on its own stream, beside tracking, and a job ends early when a
 newer one waits and it made ``preempt_fraction`` of its steps.
-Two synchronisations make that safe: ``Slam`` finishes a side stream's work before it publishes a
-map (``Slam._set_gaussians``), and tracking reads its result back to the host before it returns,
-so no tensor is freed while a kernel of the other thread may still read it.
+Two synchronisations make that safe: the mapping thread finishes its stream's work before ``Slam``
+publishes a map (``Slam.map``'s ``before_publish``), and tracking reads its result back to the host
+before it returns, so no tensor is freed while a kernel of the other thread may still read it.
+
+``Slam`` itself holds no locks: the nodes reach the map, the trajectory and the label table through
+this class (:meth:`SlamPipeline.snapshot`, :meth:`SlamPipeline.replace_map`,
+:meth:`SlamPipeline.use_label_table`), never by writing ``Slam``'s fields.
 """
 
 from __future__ import annotations
@@ -38,11 +42,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from sgs_slam_core.errors import SgsSlamError
+from sgs_slam_core.errors import FrameError, SgsSlamError
 from sgs_slam_core.frame import Frame
+from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.labels import LabelTable
+from sgs_slam_core.render.api import RenderOutput, render
+from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
 
-__all__ = ["MapJob", "PipelineStats", "SlamPipeline"]
+__all__ = ["MapJob", "PipelineStats", "SlamPipeline", "SlamSnapshot"]
 
 
 class _StoppingError(Exception):
@@ -56,6 +65,23 @@ class MapJob:
     frame: Frame
     tracked: TrackOutcome | None = None
     c2w: np.ndarray | None = None  # [4, 4] registered when ``tracked`` is None
+
+
+@dataclass(frozen=True)
+class SlamSnapshot:
+    """What outputs read of the SLAM at one moment; ``last_*`` are None before the first frame."""
+
+    gaussians: GaussianMap
+    intrinsics: Intrinsics | None
+    codec: SemanticCodec
+    label_candidates: tuple[int, ...]  # class ids seen so far (what decoding may return)
+    frames_processed: int
+    last_stamp_ns: int | None
+    last_c2w: np.ndarray | None  # [4, 4]
+
+    def decode(self, semantic: torch.Tensor) -> torch.Tensor:  # [..., S] -> [...] int64
+        """Class ids from semantic features (rendered or per Gaussian)."""
+        return self.codec.decode(semantic, list(self.label_candidates))
 
 
 @dataclass
@@ -136,6 +162,11 @@ class SlamPipeline:
                 self.stats.dropped_frames += 1
             self._frames.append((time.monotonic() if received_at is None else received_at, frame))
             self._cv.notify_all()
+
+    def count_dropped(self, frames: int = 1) -> None:
+        """Count frames the caller dropped before handing them over (e.g. a pose that never came)."""
+        with self._cv:
+            self.stats.dropped_frames += frames
 
     def submit_job(self, job: MapJob) -> None:
         """A frame to map (from the tracking thread, or with a pose from another process)."""
@@ -220,7 +251,7 @@ class SlamPipeline:
             try:
                 with self._on_map_stream():
                     tracked = job.tracked or self.slam.register(job.frame, job.c2w)
-                    result = self.slam.map(job.frame, tracked, self._between_map_steps)
+                    result = self.slam.map(job.frame, tracked, self._between_map_steps, self._finish_map_stream)
             except _StoppingError:
                 pass  # shutting down: this frame's mapping is abandoned, the map keeps its last version
             except Exception as err:
@@ -248,6 +279,11 @@ class SlamPipeline:
                 return False
             self._map_steps += 1
             return True
+
+    def _finish_map_stream(self) -> None:
+        """Before a map made on the mapping stream is shared: its kernels complete first."""
+        if self._map_stream is not None:
+            self._map_stream.synchronize()
 
     @contextlib.contextmanager
     def _on_map_stream(self) -> Iterator[None]:
@@ -311,6 +347,34 @@ class SlamPipeline:
             self.slam.reset()
             self._cv.notify_all()
         return True
+
+    def snapshot(self) -> SlamSnapshot:
+        """The map and run state as they are now, for outputs (consistent: the map is replaced whole)."""
+        slam = self.slam
+        last = slam.trajectory[-1] if slam.trajectory else None
+        return SlamSnapshot(slam.gaussians, slam.intrinsics, slam.codec, tuple(slam.label_candidates()),
+                            slam.frames_processed, None if last is None else last[1],
+                            None if last is None else last[2].copy())  # fmt: skip
+
+    def render_view(self, snapshot: SlamSnapshot, c2w: np.ndarray) -> RenderOutput:  # c2w [4, 4]
+        """Render ``snapshot``'s map from ``c2w`` with its intrinsics and the SLAM's render settings."""
+        if snapshot.intrinsics is None:
+            raise FrameError("no frame processed yet: nothing to render")
+        w2c = torch.as_tensor(np.linalg.inv(c2w), dtype=torch.float32, device=self.slam.device)
+        with torch.no_grad():
+            return render(snapshot.gaussians, snapshot.intrinsics, w2c, self.slam.config.render)
+
+    def replace_map(self, gaussians: GaussianMap) -> None:
+        """Track against ``gaussians`` from now on (a mapper's map from another process)."""
+        self.slam.set_map(gaussians)
+
+    def use_label_table(self, table: LabelTable, timeout: float = 30.0) -> bool:
+        """Label with ``table`` when nothing was processed yet; False (table unchanged) once frames were."""
+        with self.exclusive(timeout):
+            if self.slam.frames_processed or self.slam.num_gaussians:
+                return False
+            self.slam.use_label_table(table)
+            return True
 
     def wake(self) -> None:
         """Re-check the conditions the workers wait on (e.g. after ``ready_to_track`` may have changed)."""

@@ -21,10 +21,10 @@ import torch
 
 from sgs_slam_core.errors import MapFileError, ShapeError
 from sgs_slam_core.fileio import atomic_write
+from sgs_slam_core.frame import CompactFrame, compact_labels
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelError, LabelTable
-from sgs_slam_core.slam.frame_data import CompactFrame, compact_labels
 from sgs_slam_core.validate import as_float, as_int
 
 __all__ = ["FORMAT", "VERSION", "MapFile", "load_map", "save_map"]

@@ -72,16 +72,16 @@ def _peak_memory_mb(device: torch.device) -> float:
 
 
 def _csv_row(step: StepResult, dataset_index: int) -> dict[str, Any]:
-    tr, mp = step.tracking, step.mapping
+    tr, mp = step.track.result, step.map.stats
     return {
-        "frame": step.index, "dataset_index": dataset_index, "stamp_ns": step.stamp_ns,
-        "track_ms": round(step.track_time_s * 1e3, 2), "map_ms": round(step.map_time_s * 1e3, 2),
+        "frame": step.index, "dataset_index": dataset_index, "stamp_ns": step.track.stamp_ns,
+        "track_ms": round(step.track.time_s * 1e3, 2), "map_ms": round(step.map.time_s * 1e3, 2),
         "track_iterations": tr.iterations if tr else 0, "track_converged": int(bool(tr and tr.converged)),
         "track_residual_cm": round(tr.depth_residual_m * 100, 4) if tr else "",
-        "map_iterations": mp.iterations if mp else 0, "added": step.added, "pruned": mp.pruned if mp else 0,
-        "gaussians": step.num_gaussians, "keyframe": int(step.keyframe),
-        "window": len(step.window.keyframes) + 1 if step.window else 0,
-        "tracking_failed": int(step.tracking_failed), "reason": step.failure_reason or "",
+        "map_iterations": mp.iterations if mp else 0, "added": step.map.added, "pruned": mp.pruned if mp else 0,
+        "gaussians": step.num_gaussians, "keyframe": int(step.map.keyframe),
+        "window": len(step.map.window.keyframes) + 1 if step.map.window else 0,
+        "tracking_failed": int(step.track.failed), "reason": step.track.failure_reason or "",
     }  # fmt: skip
 
 
@@ -109,8 +109,8 @@ class _Loop:
         self.gts.append(gt_c2w)
         self.steps.append(step)
         self.rows.append(_csv_row(step, index))
-        self.track_s += step.track_time_s
-        self.map_s += step.map_time_s
+        self.track_s += step.track.time_s
+        self.map_s += step.map.time_s
 
 
 def _process_all(slam: Slam, dataset: Dataset, observers: list[Viewer], should_stop: Callable[[], bool]) -> _Loop:
@@ -173,10 +173,10 @@ def _timing(loop: _Loop) -> dict[str, Any]:
         return {"fps": frames / max(loop.track_s + loop.map_s, 1e-9), "track_ms_per_frame": 1e3 * loop.track_s / frames,
                 "map_ms_per_frame": 1e3 * loop.map_s / frames, "load_ms_per_frame": 1e3 * loop.load_s / frames,
                 "frames_in": frames + loop.bad_frames, "frames_tracked": frames, "frames_dropped": 0,
-                "frames_mapped": sum(s.mapping is not None for s in loop.steps), "realtime_hz": None}  # fmt: skip
-    mapped = [s for s in loop.steps if s.mapping is not None]
+                "frames_mapped": sum(s.map.stats is not None for s in loop.steps), "realtime_hz": None}  # fmt: skip
+    mapped = [s for s in loop.steps if s.map.stats is not None]
     return {"fps": frames / max(live.wall_s, 1e-9), "track_ms_per_frame": 1e3 * loop.track_s / frames,
-            "map_ms_per_frame": 1e3 * sum(s.map_time_s for s in mapped) / max(len(mapped), 1),
+            "map_ms_per_frame": 1e3 * sum(s.map.time_s for s in mapped) / max(len(mapped), 1),
             "frames_in": live.frames_in, "frames_tracked": live.frames_tracked, "frames_dropped": live.frames_dropped,
             "frames_mapped": live.frames_mapped, "realtime_hz": live.realtime_hz, "late_frames": live.late_frames,
             "wall_s": live.wall_s}  # fmt: skip

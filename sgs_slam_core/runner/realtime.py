@@ -25,7 +25,8 @@ from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.errors import DatasetError, FrameError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.live import SlamPipeline
-from sgs_slam_core.slam.system import MapOutcome, Slam, StepResult, TrackOutcome
+from sgs_slam_core.slam.outcomes import MapOutcome, StepResult, TrackOutcome
+from sgs_slam_core.slam.system import Slam
 
 __all__ = ["RealtimeOptions", "RealtimeResult", "RealtimeStats", "release_times", "run_realtime"]
 
@@ -90,7 +91,7 @@ def run_realtime(
     """Release every frame of ``dataset`` on time into a live pipeline around ``slam``; wait for it.
 
     ``on_tracked(frame, step)`` is called on this (the releasing) thread for each newly tracked frame,
-    between releases (progress display, live viewer); ``step.mapping`` is not known yet there.
+    between releases (progress display, live viewer); ``step.map`` is not known yet there.
     ``should_stop()`` is asked before each release: True ends the replay (the frames in flight finish).
     A frame that cannot be read is skipped and counted with the frames the SLAM rejects.
     """
@@ -129,7 +130,7 @@ class _Replay:
         """Hand the newly tracked frames to ``on_tracked`` (on the releasing thread)."""
         while self.on_tracked is not None and not self.news.empty():
             frame, outcome = self.news.get()
-            self.on_tracked(frame, _step(outcome, None, self.slam.num_gaussians))
+            self.on_tracked(frame, StepResult(outcome, MapOutcome.not_mapped(), self.slam.num_gaussians))
 
     def read(self, i: int) -> Frame | None:
         """Frame ``i``, or None (counted, logged) when it cannot be read."""
@@ -176,14 +177,15 @@ class _Replay:
                                 first_skip=self.first_skip or (self.errors[0] if self.errors else ""))  # fmt: skip
         for index in sorted(self.tracked):
             gt_c2w, outcome = self.tracked[index]
-            result.steps.append(_step(outcome, self.mapped.get(index), self.slam.num_gaussians))
+            mapped = self.mapped.get(index, MapOutcome.not_mapped())
+            result.steps.append(StepResult(outcome, mapped, self.slam.num_gaussians))  # the final map's size
             result.dataset_indices.append(index)
             result.gt_c2w.append(gt_c2w)
         return result
 
     def _stats(self, pipeline: SlamPipeline, times: np.ndarray, hz: float | None, wall_s: float) -> RealtimeStats:
         st = pipeline.stats
-        mapped = sum(m.mapping is not None for m in self.mapped.values())  # optimised, as in lockstep
+        mapped = sum(m.stats is not None for m in self.mapped.values())  # optimised, as in lockstep
         duration = float(times[-1]) if len(times) > 1 else 0.0
         rate = (len(times) - 1) / duration if duration > 0 else float(hz or 0.0)
         return RealtimeStats(
@@ -191,12 +193,3 @@ class _Replay:
             frames_dropped=st.frames_in - len(self.tracked) - st.tracking_errors, frames_mapped=mapped,
             realtime_hz=rate, wall_s=wall_s, late_frames=self.late, bad_frames=self.unreadable + st.tracking_errors,
         )  # fmt: skip
-
-
-def _step(tr: TrackOutcome, m: MapOutcome | None, gaussians: int) -> StepResult:
-    """A tracked frame as a lockstep step would report it (``num_gaussians``: the final map's)."""
-    if m is None:
-        return StepResult(tr.index, tr.stamp_ns, tr.c2w, tr.tracking, None, None, False, 0, gaussians, tr.failed,
-                          tr.failure_reason, tr.time_s, 0.0, {"track": tr.time_s})  # fmt: skip
-    return StepResult(tr.index, tr.stamp_ns, tr.c2w, tr.tracking, m.mapping, m.window, m.keyframe, m.added, gaussians,
-                      tr.failed, tr.failure_reason, tr.time_s, m.time_s, {"track": tr.time_s, **m.timings})  # fmt: skip

@@ -8,13 +8,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from sgs_slam_core.config.sections import DensifySettings
+from sgs_slam_core.frame import Frame
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import backproject
-from sgs_slam_core.render.api import RenderOutput
-from sgs_slam_core.slam.frame_data import FrameTensors
-from sgs_slam_core.slam.settings import DensifySettings
+from sgs_slam_core.geometry.se3 import se3_inverse
+from sgs_slam_core.render.api import RenderOutput, render
+from sgs_slam_core.render.settings import RenderSettings
+from sgs_slam_core.semantics import SemanticCodec
+from sgs_slam_core.slam.edits import EditLocks
+from sgs_slam_core.slam.frame_data import FrameTensors, resize_arrays
 
-__all__ = ["densify_mask", "gaussians_from_pixels", "over_budget", "spaced"]
+__all__ = ["densify_frame", "densify_mask", "gaussians_from_pixels", "over_budget", "spaced"]
 
 _CELL_BASE_M = 1e-3  # spacing cells are this times a power of two (m)
 
@@ -144,3 +149,40 @@ def scene_radius(first_depth: np.ndarray, depth_ratio: float) -> float:
     """SplaTAM's scene radius: max first-frame depth / ratio (m); used to prune huge Gaussians."""
     valid = first_depth[first_depth > 0]
     return float(valid.max() / depth_ratio) if valid.size else 1.0
+
+
+def densify_frame(
+    gaussians: GaussianMap,
+    data: FrameTensors,
+    frame: Frame,  # the same frame on the host (a lower densification resolution resizes it)
+    c2w: np.ndarray,  # [4, 4] its estimated pose
+    settings: DensifySettings,
+    render_settings: RenderSettings,
+    codec: SemanticCodec,
+    edits: EditLocks,
+    generator: torch.Generator,
+) -> tuple[GaussianMap, int]:  # the map with the new Gaussians, how many were added
+    """Add Gaussians where ``gaussians`` do not explain the frame (all of it for an empty map), within the budget."""
+    device = data.depth.device
+    c2w_t = torch.as_tensor(c2w, dtype=torch.float32, device=device)
+    if len(gaussians) == 0:
+        mask = data.valid
+    else:
+        with torch.no_grad():
+            out = render(gaussians, data.intrinsics, se3_inverse(c2w_t), render_settings, with_semantics=False)
+        mask = densify_mask(out, data, settings)
+    source = data
+    if settings.resolution_scale < 1.0:
+        rgb, depth, labels, k = resize_arrays(
+            frame.rgb, frame.depth, frame.labels, frame.intrinsics, settings.resolution_scale
+        )
+        source = FrameTensors.from_arrays(data.index, k, rgb, depth, labels, codec, device)
+        source = source.with_ignore(edits.ignore_mask(source.labels))
+        mask = torch.nn.functional.interpolate(mask[None, None].float(), size=k.shape, mode="nearest")[0, 0] > 0.5
+        mask &= source.valid
+    new = gaussians_from_pixels(
+        source, c2w_t, mask, codec.num_channels, settings, generator=generator, existing=gaussians
+    )
+    if settings.max_gaussians is not None:  # the Gaussian budget: the least opaque make room
+        gaussians = gaussians.prune(over_budget(gaussians, len(new), settings.max_gaussians, edits.locked_labels))
+    return gaussians.cat(new), len(new)

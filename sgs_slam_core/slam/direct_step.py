@@ -16,6 +16,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from sgs_slam_core.config.sections import MappingSettings
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.render import cpu_backend
 from sgs_slam_core.render.api import RenderOutput, resolve_backend
@@ -23,7 +24,6 @@ from sgs_slam_core.render.settings import RenderSettings
 from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.fused_losses import fused_available
 from sgs_slam_core.slam.losses import mapping_loss_and_grads
-from sgs_slam_core.slam.settings import MappingSettings
 
 __all__ = ["direct_available", "mapping_step_grads"]
 

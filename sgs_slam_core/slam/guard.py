@@ -6,7 +6,7 @@ from collections import deque
 
 import numpy as np
 
-from sgs_slam_core.slam.settings import GuardSettings
+from sgs_slam_core.config.sections import GuardSettings
 
 __all__ = ["TrackingGuard"]
 

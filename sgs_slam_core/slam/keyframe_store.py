@@ -16,9 +16,9 @@ from typing import overload
 
 import numpy as np
 
-from sgs_slam_core.slam.frame_data import DEPTH_UNITS_PER_M, CompactFrame
+from sgs_slam_core.config.sections import KeyframeSettings
+from sgs_slam_core.frame import DEPTH_UNITS_PER_M, CompactFrame
 from sgs_slam_core.slam.keyframes import label_miou, overlap_scores
-from sgs_slam_core.slam.settings import KeyframeSettings
 
 __all__ = ["KeyframeStore", "StoreStats", "view_points"]
 

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sgs_slam_core.slam.frame_data import CompactFrame
-from sgs_slam_core.slam.settings import KeyframeSettings
+from sgs_slam_core.config.sections import KeyframeSettings
+from sgs_slam_core.frame import CompactFrame
 
 __all__ = ["Window", "is_keyframe", "label_miou", "overlap_scores", "select_window"]
 

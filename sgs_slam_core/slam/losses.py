@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from sgs_slam_core.config.sections import MappingSettings, TrackingSettings
 from sgs_slam_core.render.api import RenderOutput
 from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.fused_losses import (
@@ -16,7 +17,6 @@ from sgs_slam_core.slam.fused_losses import (
     mapping_loss_grads,
 )
 from sgs_slam_core.slam.photometric import photometric_loss
-from sgs_slam_core.slam.settings import MappingSettings, TrackingSettings
 
 __all__ = [
     "TrackingLoss",

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from sgs_slam_core.config.sections import MappingSettings
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.render.api import render
@@ -17,7 +18,6 @@ from sgs_slam_core.slam.direct_step import direct_available, mapping_step_grads
 from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.losses import mapping_loss
 from sgs_slam_core.slam.optimizer import GaussianOptimizer
-from sgs_slam_core.slam.settings import MappingSettings
 
 __all__ = ["MapResult", "MapStats", "WindowFrame", "map_window", "prune_mask"]
 

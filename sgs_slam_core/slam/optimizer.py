@@ -5,9 +5,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from sgs_slam_core.config.sections import MappingSettings
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.slam.adam import FusedAdam
-from sgs_slam_core.slam.settings import MappingSettings
 
 __all__ = ["GaussianOptimizer"]
 

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from sgs_slam_core.config.sections import TrackingSettings
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.render.api import render
@@ -18,7 +19,6 @@ from sgs_slam_core.slam.adam import FusedAdam
 from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.losses import TrackingLoss, tracking_loss
 from sgs_slam_core.slam.pose import PoseParameters
-from sgs_slam_core.slam.settings import TrackingSettings
 
 __all__ = ["TrackResult", "track"]
 

@@ -20,15 +20,14 @@ from foxglove import channels as fch
 from foxglove import messages as fm
 
 from sgs_slam_core.errors import BackendUnavailableError
+from sgs_slam_core.frame_ids import CAMERA_FRAME, MAP_FRAME
 from sgs_slam_core.geometry.se3 import rotmat_to_quat
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.viz.snapshot import MapPoints, Snapshot
 from sgs_slam_core.viz.viewer import StreamingViewer, ViewerOptions
 
-__all__ = ["CAMERA_FRAME", "MAP_FRAME", "STATUS_SCHEMA", "FoxgloveViewer"]
+__all__ = ["STATUS_SCHEMA", "FoxgloveViewer"]
 
-MAP_FRAME = "map"
-CAMERA_FRAME = "camera"
 STATUS_SCHEMA = {
     "type": "object",
     "properties": {

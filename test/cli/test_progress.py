@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 
+from sgs_slam_core.config.sections import KeyframeSettings
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.metrics import ate
 from sgs_slam_core.runner.progress import ProgressBar, SlamProgress
 from sgs_slam_core.slam.keyframe_store import KeyframeStore
-from sgs_slam_core.slam.settings import KeyframeSettings
 
 
 def test_log_lines_carry_elapsed_eta_rate_and_extra_and_are_rate_limited(monkeypatch):

@@ -11,12 +11,12 @@ import torch
 
 from sgs_slam_core.cli import main
 from sgs_slam_core.config import load_config
+from sgs_slam_core.config.sections import LiveSettings
 from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.metrics import read_tum_trajectory
 from sgs_slam_core.runner.realtime import _Replay, release_times, run_realtime
-from sgs_slam_core.slam.settings import LiveSettings
 from sgs_slam_core.slam.system import Slam, TrackOutcome
 
 from ..conftest import FAST_SLAM
@@ -41,7 +41,7 @@ class GatedSlam:
         self.frames_processed += 1
         return SimpleNamespace(failed=False, index=frame.index)
 
-    def map(self, frame, tracked, between_iterations=None):
+    def map(self, frame, tracked, between_iterations=None, before_publish=None):
         self.num_gaussians += 1
         return SimpleNamespace()
 
@@ -65,7 +65,7 @@ class TimedSlam(GatedSlam):
         self.frames_processed += 1
         return SimpleNamespace(failed=False, index=frame.index)
 
-    def map(self, frame, tracked, between_iterations=None):
+    def map(self, frame, tracked, between_iterations=None, before_publish=None):
         self.num_gaussians += 1
         self.job_now, steps = True, 0
         for _ in range(20):
@@ -192,7 +192,7 @@ class SlowMappingSlam(GatedSlam):
         self.frames_processed += 1
         return SimpleNamespace(failed=False, index=frame.index)
 
-    def map(self, frame, tracked, between_iterations=None):
+    def map(self, frame, tracked, between_iterations=None, before_publish=None):
         for _ in range(400):
             if between_iterations is not None and not between_iterations():
                 break

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from sgs_slam_core.config.sections import MappingSettings
 from sgs_slam_core.render import RenderSettings, cpu_backend, render
 from sgs_slam_core.slam import mapper
 from sgs_slam_core.slam.direct_step import direct_available, mapping_step_grads
@@ -13,7 +14,6 @@ from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.fused_losses import fused_available
 from sgs_slam_core.slam.losses import mapping_loss
 from sgs_slam_core.slam.optimizer import GaussianOptimizer
-from sgs_slam_core.slam.settings import MappingSettings
 
 from ..render.scenes import random_scene
 

@@ -7,11 +7,11 @@ import dataclasses
 import pytest
 import torch
 
+from sgs_slam_core.config.sections import MappingSettings, TrackingSettings
 from sgs_slam_core.render.api import RenderOutput
 from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.losses import mapping_loss, mapping_loss_reference, tracking_loss, tracking_loss_reference
 from sgs_slam_core.slam.photometric import EXTENSION
-from sgs_slam_core.slam.settings import MappingSettings, TrackingSettings
 
 from ..render.scenes import random_scene
 

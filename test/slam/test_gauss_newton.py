@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from sgs_slam_core.config import load_config
+from sgs_slam_core.config.sections import DensifySettings, GaussNewtonSettings, TrackingSettings
 from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.errors import ConfigError
 from sgs_slam_core.gaussians import GaussianMap
@@ -16,7 +17,6 @@ from sgs_slam_core.geometry.icp import _associate, _channel_rows, channel_pyrami
 from sgs_slam_core.render import RenderSettings, render
 from sgs_slam_core.slam.densify import gaussians_from_pixels
 from sgs_slam_core.slam.frame_data import FrameTensors
-from sgs_slam_core.slam.settings import DensifySettings, GaussNewtonSettings, TrackingSettings
 from sgs_slam_core.slam.system import Slam
 from sgs_slam_core.slam.trackers import AdamTracker, GaussNewtonTracker, build_tracker
 
@@ -121,10 +121,10 @@ def test_slam_with_the_gauss_newton_tracker_follows_the_tiny_scene(tiny_scene):
     errors = []
     for i in range(8):
         step = slam.process(tiny[i])
-        assert not step.tracking_failed
+        assert not step.track.failed
         errors.append(np.linalg.norm(step.c2w[:3, 3] - slam._gt_in_map_frame(tiny[i].gt_c2w)[:3, 3]))
     assert max(errors) < 0.09 and np.mean(errors) < 0.06, errors
-    assert step.tracking.renders == 2 and step.tracking.iterations == 3  # one 64-pixel level: 3 steps
+    assert step.track.result.renders == 2 and step.track.result.iterations == 3  # one 64-pixel level: 3 steps
 
 
 def test_the_compiled_step_matches_the_pytorch_reference():

@@ -7,13 +7,13 @@ import pytest
 import torch
 
 from sgs_slam_core.config import load_config
+from sgs_slam_core.config.sections import DensifySettings, KeyframeSettings
 from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.errors import ConfigError
+from sgs_slam_core.frame import CompactFrame, compact_labels
 from sgs_slam_core.geometry import Intrinsics
 from sgs_slam_core.mapio import load_map, save_map
-from sgs_slam_core.slam.frame_data import CompactFrame, compact_labels
 from sgs_slam_core.slam.keyframe_store import KeyframeStore, view_points
-from sgs_slam_core.slam.settings import DensifySettings, KeyframeSettings
 from sgs_slam_core.slam.system import Slam
 
 from ..conftest import FAST_SLAM
@@ -152,7 +152,7 @@ def test_slam_keeps_the_map_under_its_gaussian_cap(tiny_scene):
     slam = Slam(load_config("synthetic", overrides=[*FAST_SLAM, "densify.max_gaussians=1500"]), data.label_table)
     for i in range(len(data)):
         step = slam.process(data[i])
-        assert step.num_gaussians <= max(1500, step.added)  # mapping only prunes
+        assert step.num_gaussians <= max(1500, step.map.added)  # mapping only prunes
     assert slam.num_gaussians > 1000
     with pytest.raises(ConfigError):
         DensifySettings(max_gaussians=0)

@@ -1,21 +1,23 @@
 """Unit tests of SLAM building blocks."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
 
 from sgs_slam_core.config import load_config
-from sgs_slam_core.frame import Frame
+from sgs_slam_core.config.sections import GuardSettings, KeyframeSettings, MappingSettings
+from sgs_slam_core.frame import CompactFrame, Frame
 from sgs_slam_core.geometry import Intrinsics, se3_exp
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.render import RenderSettings
 from sgs_slam_core.semantics import SemanticCodec
-from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors
+from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.guard import TrackingGuard
 from sgs_slam_core.slam.keyframes import is_keyframe, label_miou, overlap_scores, select_window
 from sgs_slam_core.slam.optimizer import GaussianOptimizer
 from sgs_slam_core.slam.pose import PoseParameters, predict_constant_velocity
-from sgs_slam_core.slam.settings import GuardSettings, KeyframeSettings, MappingSettings
 
 from ..render.scenes import random_scene
 
@@ -132,7 +134,7 @@ def test_compact_frames_round_trip_depth_to_a_fifth_of_a_millimetre():
     c = CompactFrame.from_frame(f, np.eye(4))
     assert np.abs(c.depth_m - depth).max() <= 1e-4 + 1e-6
     codec = SemanticCodec(load_config("synthetic").semantic, LabelTable.nyu40())
-    t = c.to_tensors(codec, torch.device("cpu"))
+    t = FrameTensors.from_compact(c, codec, torch.device("cpu"))
     assert isinstance(t, FrameTensors) and t.semantic.shape == (48, 64, 3)
 
 
@@ -141,10 +143,11 @@ def test_the_valid_mask_follows_depth_and_ignore():
     t = FrameTensors(0, K, torch.zeros(2, 2, 3), depth, None, None)
     assert t.valid.tolist() == [[False, True], [True, True]]
     assert t.valid is t.valid  # kept between asks
-    t.ignore = torch.tensor([[False, False], [True, False]])  # an edit lock set after construction
-    assert t.valid.tolist() == [[False, True], [False, True]]
-    t.depth = torch.zeros(2, 2)
-    assert not t.valid.any()
+    locked = t.with_ignore(torch.tensor([[False, False], [True, False]]))  # the edit locks at the time of use
+    assert locked.valid.tolist() == [[False, True], [False, True]]
+    assert t.valid.tolist() == [[False, True], [True, True]]  # the frame itself is unchanged
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        t.depth = torch.zeros(2, 2)
 
 
 def test_the_first_mapping_steps_render_the_newest_window_frame(monkeypatch):

@@ -39,14 +39,14 @@ def test_pose_error_and_semantics_on_the_tiny_scene(tiny, baseline):
     gt = np.stack([tiny[i].gt_c2w for i in range(len(tiny))])
     est = np.stack([s.c2w for s in steps])
     assert ate(est, gt).rmse < 0.015  # 1.5 cm at 64x48 with CI-sized iteration budgets
-    assert not any(s.tracking_failed for s in steps)
+    assert not any(s.track.failed for s in steps)
     cm = ConfusionMatrix()
     for i in (0, 5, 11):
         out = slam.render_view(steps[i].c2w)
         cm.update(slam.decode(out.semantic), tiny[i].labels)
     assert cm.miou() > 0.8
     assert set(slam.gaussians.labels.unique().tolist()) <= set(slam.label_candidates())
-    assert [s.keyframe for s in steps] == [i == 0 or (i + 1) % 5 == 0 for i in range(12)]
+    assert [s.map.keyframe for s in steps] == [i == 0 or (i + 1) % 5 == 0 for i in range(12)]
     assert len(slam.keyframes) == 3 and slam.keyframes[0].rgb.dtype == np.uint8
 
 
@@ -76,7 +76,7 @@ def test_keyframe_switches_reach_the_window(tiny):
         ["keyframes.every=1", "keyframes.semantic_filter=false", "keyframes.uncertainty_weighting=false"],
         frames=5,
     )
-    w_on, w_off = on[4].window, off[4].window
+    w_on, w_off = on[4].map.window, off[4].map.window
     assert w_on.after_semantic < w_on.after_geometric  # near-identical views are dropped
     assert w_off.after_semantic == w_off.after_geometric
     assert len(set(w_off.weights)) == 1 and len(set(w_on.weights)) > 1  # U(t) only when switched on
@@ -90,7 +90,7 @@ def test_a_run_keeps_one_map_version(tiny):
     old = weakref.ref(slam.gaussians.means)
     steps += [slam.process(tiny[i]) for i in range(3, 5)]
     gc.collect()
-    assert all(s.mapping is not None for s in steps)
+    assert all(s.map.stats is not None for s in steps)
     assert old() is None, "an old map version is still referenced"
 
 
@@ -99,7 +99,7 @@ def test_frames_without_labels_still_work(tiny):
     slam.process(tiny[0])
     f = tiny[1]
     step = slam.process(dataclasses.replace(f, labels=None))
-    assert not step.tracking_failed and step.mapping is not None
+    assert not step.track.failed and step.map.stats is not None
     assert np.linalg.norm(step.c2w[:3, 3] - (np.linalg.inv(tiny[0].gt_c2w) @ f.gt_c2w)[:3, 3]) < 0.05
 
 
@@ -125,15 +125,15 @@ def test_tracking_failure_is_flagged_and_the_map_kept(tiny):
     rng = np.random.default_rng(0)
     garbage = dataclasses.replace(f, depth=(f.depth * rng.uniform(0.3, 3.0, f.depth.shape)).astype(np.float32))
     step = slam.process(garbage)
-    assert step.tracking_failed and step.mapping is None and step.failure_reason
+    assert step.track.failed and step.map.stats is None and step.track.failure_reason
     after = slam.gaussians.state_dict()
     assert all(torch.equal(before[k], after[k]) for k in before)
     assert slam.failures == 1
     good = slam.process(tiny[5])
-    assert not good.tracking_failed
+    assert not good.track.failed
 
 
 def test_gt_pose_mode(tiny):
     _, steps = run(tiny, ["tracking.use_gt_pose=true"], frames=3)
     gt = np.linalg.inv(tiny[0].gt_c2w) @ tiny[2].gt_c2w
-    assert np.allclose(steps[2].c2w, gt) and steps[2].tracking is None
+    assert np.allclose(steps[2].c2w, gt) and steps[2].track.result is None

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from sgs_slam_core.config import load_config
+from sgs_slam_core.config.sections import MappingSettings, TrackingSettings
 from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.geometry import se3_exp
 from sgs_slam_core.render import RenderSettings, render
@@ -15,7 +16,6 @@ from sgs_slam_core.render.api import RenderOutput
 from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.icp_init import IcpInit
 from sgs_slam_core.slam.losses import mapping_loss, tracking_loss
-from sgs_slam_core.slam.settings import MappingSettings, TrackingSettings
 from sgs_slam_core.slam.system import Slam
 from sgs_slam_core.slam.tracker import track
 
@@ -92,15 +92,15 @@ def test_the_icp_start_runs_after_dropped_frames_only_and_helps_there(tiny_scene
 
     monkeypatch.setattr(IcpInit, "refine", spy)
     errors, steps = [], []
-    for icp in ("tracking.icp_min_gap=1.5", "tracking.icp_iterations=[]"):
+    for icp in ("motion.icp_min_gap=1.5", "motion.icp_iterations=[]"):
         slam = Slam(load_config("synthetic", overrides=[*FAST_SLAM, icp]), tiny.label_table)
         for i in range(4):
             slam.process(tiny[i])
         assert outcomes == []
         step = slam.process(tiny[7])  # frames 4-6 were dropped
         errors.append(np.linalg.norm(step.c2w[:3, 3] - slam._gt_in_map_frame(tiny[7].gt_c2w)[:3, 3]))
-        steps.append(step.tracking.iterations)
-        if icp.startswith("tracking.icp_min_gap"):
+        steps.append(step.track.result.iterations)
+        if icp.startswith("motion.icp_min_gap"):
             assert len(outcomes) == 1 and outcomes.pop().used
     assert errors[0] < errors[1] and steps[0] < steps[1]  # measured: 2.1 vs 3.1 cm, 14 vs 30 (the cap) steps
 

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from sgs_slam_core.config.sections import TrackingSettings
 from sgs_slam_core.render.settings import RenderSettings
-from sgs_slam_core.slam.settings import TrackingSettings
 from sgs_slam_core.slam.trackers.adam import AdamTracker
 from sgs_slam_core.slam.trackers.base import Tracker
 from sgs_slam_core.slam.trackers.gauss_newton import GaussNewtonTracker

@@ -7,10 +7,10 @@ from dataclasses import replace
 
 import numpy as np
 
+from sgs_slam_core.config.sections import TrackingSettings
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.render.settings import RenderSettings
 from sgs_slam_core.slam.frame_data import FrameTensors
-from sgs_slam_core.slam.settings import TrackingSettings
 from sgs_slam_core.slam.tracker import TrackResult, track
 
 __all__ = ["AdamTracker"]

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from sgs_slam_core.config.sections import TrackingSettings
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.icp import IcpLevel, align_device, channel_pyramid, icp_pyramid, source_channels
@@ -27,7 +28,6 @@ from sgs_slam_core.render.api import RenderOutput, render
 from sgs_slam_core.render.settings import RenderSettings
 from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.losses import tracking_loss
-from sgs_slam_core.slam.settings import TrackingSettings
 from sgs_slam_core.slam.tracker import TrackResult, track
 
 __all__ = ["GaussNewtonTracker"]

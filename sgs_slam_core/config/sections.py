@@ -1,4 +1,4 @@
-"""Typed settings of the SLAM loop (sections of :class:`~sgs_slam_core.config.SlamConfig`).
+"""The SLAM loop's sections of :class:`~sgs_slam_core.config.SlamConfig` (rendering and semantics have their own).
 
 Defaults are SGS-SLAM's Replica values (paper supplementary and released config); presets override.
 """
@@ -8,7 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-from sgs_slam_core.errors import ConfigError
+from sgs_slam_core.errors import ConfigError, ShapeError
+from sgs_slam_core.geometry.gravity import OPTICAL_IN_BODY, pose_from_xyz_rpy
 from sgs_slam_core.geometry.icp import IcpSettings
 
 __all__ = [
@@ -17,12 +18,16 @@ __all__ = [
     "GuardSettings",
     "KeyframeSettings",
     "LiveSettings",
+    "MapAlignmentName",
+    "MapFrameSettings",
     "MappingSettings",
+    "MotionSettings",
     "TrackerName",
     "TrackingSettings",
 ]
 
 TrackerName = Literal["adam", "gauss_newton"]
+MapAlignmentName = Literal["optical", "mount", "floor"]  # the values of geometry.gravity.MapAlignment
 
 
 def _positive(section: str, **values: float) -> None:
@@ -112,18 +117,6 @@ class TrackingSettings:
             tracking ends when a newer frame waits (the pipeline's ``newer_frame_waiting``).
         stop_check_every: read the stop test back from the device every n steps (0 = auto: every
             step on the CPU, where reading is free, every 5 on CUDA, so the loop does not wait on the GPU).
-        constant_velocity: initialise from the last two poses (else from the last pose).
-        icp_iterations: Gauss-Newton steps of a depth-to-depth ICP against the last tracked frame
-            that refines the motion prediction before the photometric steps, per pyramid level,
-            coarsest first (the last level is the full image); empty = no ICP.
-        icp_max_distance_m: ICP correspondences farther apart than this (m) are left out.
-        icp_min_inliers: the ICP result is used only when at least this fraction of the frame's
-            pixels with depth find a correspondence; otherwise the prediction is kept.
-        icp_min_gap: run the ICP only on frames that come at least this many camera frame
-            intervals (the shortest gap between two tracked frames) after the last tracked one:
-            frames were dropped (live) and the prediction extrapolates. 0 = on every frame, which
-            costs accuracy on TUM's Kinect depth at 160x120 (ATE 4.57 against 3.16 cm,
-            BENCHMARKS.md); with the default, a run without gaps never uses it.
         use_gt_pose: replace tracking by the ground-truth pose (ablation; needs ground truth).
         gauss_newton: the Gauss-Newton tracker's settings (``method: gauss_newton``).
     """
@@ -141,11 +134,6 @@ class TrackingSettings:
     stop_patience: int = 5
     min_iterations: int = 2
     stop_check_every: int = 0
-    constant_velocity: bool = True
-    icp_iterations: tuple[int, ...] = (6, 4, 3)
-    icp_max_distance_m: float = 0.1
-    icp_min_inliers: float = 0.3
-    icp_min_gap: float = 1.5
     use_gt_pose: bool = False
     gauss_newton: GaussNewtonSettings = field(default_factory=GaussNewtonSettings)
 
@@ -159,12 +147,39 @@ class TrackingSettings:
             raise ConfigError(f"tracking.sil_threshold must be in [0, 1), got {self.sil_threshold}")
         if not 0 <= self.stop_rel_improvement < 1:
             raise ConfigError(f"tracking.stop_rel_improvement must be in [0, 1), got {self.stop_rel_improvement}")
+
+
+@dataclass(frozen=True)
+class MotionSettings:
+    """Where tracking starts: the motion prediction and the depth ICP that refines it.
+
+    Attributes:
+        constant_velocity: predict from the last two poses (else start at the last pose).
+        icp_iterations: Gauss-Newton steps of a depth-to-depth ICP against the last tracked frame
+            that refines the motion prediction before tracking, per pyramid level, coarsest first
+            (the last level is the full image); empty = no ICP.
+        icp_max_distance_m: ICP correspondences farther apart than this (m) are left out.
+        icp_min_inliers: the ICP result is used only when at least this fraction of the frame's
+            pixels with depth find a correspondence; otherwise the prediction is kept.
+        icp_min_gap: run the ICP only on frames that come at least this many camera frame
+            intervals (the shortest gap between two tracked frames) after the last tracked one,
+            i.e. when frames were dropped and the prediction extrapolates; 0 = on every frame
+            (less accurate on Kinect depth, where the photometric terms do better alone).
+    """
+
+    constant_velocity: bool = True
+    icp_iterations: tuple[int, ...] = (6, 4, 3)
+    icp_max_distance_m: float = 0.1
+    icp_min_inliers: float = 0.3
+    icp_min_gap: float = 1.5
+
+    def __post_init__(self) -> None:
         if any(n < 0 for n in self.icp_iterations) or len(self.icp_iterations) > 6:
-            raise ConfigError(f"tracking.icp_iterations must be at most 6 counts >= 0, got {list(self.icp_iterations)}")
-        _positive("tracking", icp_max_distance_m=self.icp_max_distance_m)
-        _non_negative("tracking", icp_min_gap=self.icp_min_gap)
+            raise ConfigError(f"motion.icp_iterations must be at most 6 counts >= 0, got {list(self.icp_iterations)}")
+        _positive("motion", icp_max_distance_m=self.icp_max_distance_m)
+        _non_negative("motion", icp_min_gap=self.icp_min_gap)
         if not 0 <= self.icp_min_inliers <= 1:
-            raise ConfigError(f"tracking.icp_min_inliers must be in [0, 1], got {self.icp_min_inliers}")
+            raise ConfigError(f"motion.icp_min_inliers must be in [0, 1], got {self.icp_min_inliers}")
 
     @property
     def icp(self) -> IcpSettings | None:
@@ -172,6 +187,33 @@ class TrackingSettings:
         if not any(self.icp_iterations):
             return None
         return IcpSettings(iterations=self.icp_iterations, max_distance_m=self.icp_max_distance_m)
+
+
+@dataclass(frozen=True)
+class MapFrameSettings:
+    """How the map frame is oriented: chosen on the first frame of an empty map.
+
+    Attributes:
+        alignment: ``optical`` (the first camera's optical frame: x right, y down, z forward),
+            ``mount`` (z up: the first pose of the body the camera is mounted on) or ``floor``
+            (z up, levelled on the first frame's floor plane, origin on the floor; ``mount`` when
+            no floor is seen).
+        camera_mount: pose of the camera optical frame in the body frame: x y z (m) roll pitch yaw
+            (rad), or x y z qx qy qz qw; the default is a level, forward-looking camera.
+        floor_max_tilt_deg: the floor's normal may differ this much from the mount's up (deg).
+    """
+
+    alignment: MapAlignmentName = "optical"
+    camera_mount: tuple[float, ...] = OPTICAL_IN_BODY
+    floor_max_tilt_deg: float = 30.0
+
+    def __post_init__(self) -> None:
+        try:
+            pose_from_xyz_rpy(self.camera_mount)
+        except ShapeError as err:
+            raise ConfigError(f"map_frame.camera_mount: {err}") from err
+        if not 1.0 <= self.floor_max_tilt_deg <= 89.0:
+            raise ConfigError(f"map_frame.floor_max_tilt_deg must be in [1, 89], got {self.floor_max_tilt_deg}")
 
 
 @dataclass(frozen=True)
@@ -183,7 +225,7 @@ class MappingSettings:
         current_frame_steps: the first this many steps render the newest frame (the one just
             tracked, whose new Gaussians the next frame is tracked against), the rest a random window
             frame; 0 = every step random, as the reference. Matters when a frame gets few steps
-            (live on a slow machine: BENCHMARKS.md).
+            (live on a slow machine).
         every: map every n-th frame (1 = every frame, as the reference).
         lr_*: Adam learning rates per Gaussian field (eps 1e-15, as the reference).
         weight_depth, weight_color, weight_semantic: loss weights.

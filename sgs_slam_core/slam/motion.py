@@ -1,0 +1,77 @@
+"""Where tracking starts: constant velocity over the last two poses, refined by depth ICP after dropped frames."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+import torch
+
+from sgs_slam_core.config.sections import MotionSettings
+from sgs_slam_core.slam.frame_data import FrameTensors
+from sgs_slam_core.slam.icp_init import IcpInit
+from sgs_slam_core.slam.pose import predict_constant_velocity
+
+__all__ = ["MotionModel"]
+
+
+class MotionModel:
+    """The motion prior of one run: the poses it has seen, the camera's frame interval, the ICP reference."""
+
+    def __init__(self, settings: MotionSettings, initial_c2w: np.ndarray) -> None:
+        self.settings = settings
+        self.initial_c2w = initial_c2w
+        self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=2)  # (stamp_ns, c2w) of this run
+        self._resumed: list[np.ndarray] = []  # last two c2w of a loaded map: it goes on moving
+        self._min_interval_ns: int | None = None  # shortest stamp gap between two tracked frames
+        icp = settings.icp
+        self._icp = None if icp is None else IcpInit(icp, settings.icp_min_inliers)
+
+    def resume(self, poses: list[np.ndarray]) -> None:
+        """Continue from a saved run's last poses (c2w [4, 4], oldest first)."""
+        self._resumed = [np.asarray(p, dtype=np.float64).copy() for p in poses[-2:]]
+
+    def predict(self, stamp_ns: int, data: FrameTensors) -> np.ndarray:  # c2w [4, 4]
+        """The starting pose of a frame taken at ``stamp_ns``; ``data`` is its depth for the ICP."""
+        poses = [*self._resumed, *(c2w for _, c2w in self._history)]
+        prev = poses[-1] if poses else self.initial_c2w
+        prev2 = poses[-2] if len(poses) > 1 and self.settings.constant_velocity else None
+        c2w = predict_constant_velocity(prev, prev2, self._motion_fraction(stamp_ns))
+        if self._icp is not None and self._intervals_since_last(stamp_ns) >= self.settings.icp_min_gap:
+            c2w, _ = self._icp.refine(torch.where(data.valid, data.depth, 0.0), data.intrinsics, c2w)
+        return c2w
+
+    def observe(self, stamp_ns: int, c2w: np.ndarray, data: FrameTensors | None) -> None:
+        """A frame's pose; ``data`` (a tracked frame the guard accepted) becomes the next ICP reference."""
+        if self._history and stamp_ns > self._history[-1][0]:
+            gap = stamp_ns - self._history[-1][0]
+            self._min_interval_ns = gap if self._min_interval_ns is None else min(gap, self._min_interval_ns)
+        if self._icp is not None and data is not None:
+            self._icp.remember(torch.where(data.valid, data.depth, 0.0), data.intrinsics, c2w)
+        self._history.append((stamp_ns, c2w))
+
+    @property
+    def uses_icp(self) -> bool:
+        """True when accepted frames must be kept as the ICP's reference."""
+        return self._icp is not None
+
+    def _intervals_since_last(self, stamp_ns: int) -> float:
+        """Camera frame intervals since the last pose: about 1 when none was dropped, 0 when unknown."""
+        if not self._history or self._min_interval_ns is None:
+            return 0.0
+        return (stamp_ns - self._history[-1][0]) / self._min_interval_ns
+
+    def _motion_fraction(self, stamp_ns: int) -> float:
+        """Time since the last pose over the gap before it, when frames were skipped (live mode).
+
+        1 when frames came evenly (within a camera's stamp jitter) or stamps are unknown, so lockstep
+        runs repeat the last motion exactly as the reference does.
+        """
+        if len(self._history) < 2:
+            return 1.0
+        (t_prev2, _), (t_prev, _) = self._history
+        last_gap, gap = t_prev - t_prev2, stamp_ns - t_prev
+        if last_gap <= 0 or gap <= 0:
+            return 1.0
+        fraction = gap / last_gap
+        return 1.0 if 2 / 3 < fraction < 1.5 else min(fraction, 4.0)
