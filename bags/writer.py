@@ -19,9 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from rosbags.interfaces import Connection
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.store import Typestore
 
 from bags import rosbags_messages as rm
 from bags.errors import BagError
@@ -89,20 +91,8 @@ def convert(
     writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)
     if compress:
         writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-    written = [topics.color, topics.camera_info, topics.depth, topics.clock]
     with writer:
-        conn = {
-            "color": writer.add_connection(topics.color, "sensor_msgs/msg/Image", typestore=ts),
-            "info": writer.add_connection(topics.camera_info, "sensor_msgs/msg/CameraInfo", typestore=ts),
-            "depth": writer.add_connection(topics.depth, "sensor_msgs/msg/Image", typestore=ts),
-            "clock": writer.add_connection(topics.clock, "rosgraph_msgs/msg/Clock", typestore=ts),
-        }
-        if dataset.has_labels:
-            conn["semantic"] = writer.add_connection(topics.semantic, "sensor_msgs/msg/Image", typestore=ts)
-            written.append(topics.semantic)
-        if dataset.has_ground_truth:
-            conn["pose"] = writer.add_connection(topics.pose, "geometry_msgs/msg/PoseStamped", typestore=ts)
-            written.append(topics.pose)
+        conn = _connections(writer, topics, dataset, ts)
         writer.set_custom_data("dataset", dataset_name or getattr(dataset, "name", "dataset"))
         writer.set_custom_data("label_table", json.dumps(dataset.label_table.to_dict(), separators=(",", ":")))
         writer.set_custom_data("depth_units_per_metre", str(DEPTH_UNITS_PER_M))
@@ -110,30 +100,45 @@ def convert(
         for key, value in custom.items():
             writer.set_custom_data(key, value)
         for i, frame in enumerate(_frames_ahead(dataset, n)):
-            stamp = frame.stamp_ns
-
-            def put(key: str, msg: object, stamp: int = stamp) -> None:
-                writer.write(conn[key], stamp, ts.serialize_cdr(msg, msg.__msgtype__))  # type: ignore[attr-defined]
-
-            put("clock", rm.clock(ts, *ns_to_stamp(stamp)))
-            put("info", rm.camera_info(ts, camera_info_fields(frame.intrinsics, stamp, CAMERA_FRAME)))
-            put("color", rm.image(ts, image_fields(frame.rgb, "rgb8", stamp, CAMERA_FRAME)))
-            mm = np.round(frame.depth * DEPTH_UNITS_PER_M)
-            put(
-                "depth",
-                rm.image(
-                    ts, image_fields(np.where(mm <= 65535, mm, 0).astype(np.uint16), "16UC1", stamp, CAMERA_FRAME)
-                ),
-            )
-            if "semantic" in conn and frame.labels is not None:
-                if frame.labels.max(initial=0) > 65535:
-                    raise BagError(f"frame {i}: class id {frame.labels.max()} does not fit a 16UC1 label image")
-                put(
-                    "semantic", rm.image(ts, image_fields(frame.labels.astype(np.uint16), "16UC1", stamp, CAMERA_FRAME))
-                )
-            if "pose" in conn and frame.gt_c2w is not None:
-                put("pose", rm.pose_stamped(ts, c2w_to_pose(frame.gt_c2w, stamp, MAP_FRAME)))
+            _write_frame(writer, conn, ts, frame, i)
             if progress:
                 progress(i + 1, n)
+    written = tuple(c.topic for c in conn.values())
     size = sum(p.stat().st_size for p in out.iterdir())
-    return ConvertSummary(out, n, size, tuple(written))
+    return ConvertSummary(out, n, size, written)
+
+
+def _connections(writer: Writer, topics: BagTopics, dataset: Dataset, ts: Typestore) -> dict[str, Connection]:
+    """One connection per stream the dataset has (labels and ground truth only when it has them)."""
+    streams = {
+        "color": (topics.color, "sensor_msgs/msg/Image"),
+        "info": (topics.camera_info, "sensor_msgs/msg/CameraInfo"),
+        "depth": (topics.depth, "sensor_msgs/msg/Image"),
+        "clock": (topics.clock, "rosgraph_msgs/msg/Clock"),
+    }
+    if dataset.has_labels:
+        streams["semantic"] = (topics.semantic, "sensor_msgs/msg/Image")
+    if dataset.has_ground_truth:
+        streams["pose"] = (topics.pose, "geometry_msgs/msg/PoseStamped")
+    return {key: writer.add_connection(topic, kind, typestore=ts) for key, (topic, kind) in streams.items()}
+
+
+def _write_frame(writer: Writer, conn: dict[str, Connection], ts: Typestore, frame: Frame, i: int) -> None:
+    """Frame ``i``'s messages, all stamped with its time stamp."""
+    stamp = frame.stamp_ns
+
+    def put(key: str, msg: object) -> None:
+        writer.write(conn[key], stamp, ts.serialize_cdr(msg, msg.__msgtype__))  # type: ignore[attr-defined]
+
+    put("clock", rm.clock(ts, *ns_to_stamp(stamp)))
+    put("info", rm.camera_info(ts, camera_info_fields(frame.intrinsics, stamp, CAMERA_FRAME)))
+    put("color", rm.image(ts, image_fields(frame.rgb, "rgb8", stamp, CAMERA_FRAME)))
+    units = np.round(frame.depth * DEPTH_UNITS_PER_M)
+    depth = np.where(units <= 65535, units, 0).astype(np.uint16)
+    put("depth", rm.image(ts, image_fields(depth, "16UC1", stamp, CAMERA_FRAME)))
+    if "semantic" in conn and frame.labels is not None:
+        if frame.labels.max(initial=0) > 65535:
+            raise BagError(f"frame {i}: class id {frame.labels.max()} does not fit a 16UC1 label image")
+        put("semantic", rm.image(ts, image_fields(frame.labels.astype(np.uint16), "16UC1", stamp, CAMERA_FRAME)))
+    if "pose" in conn and frame.gt_c2w is not None:
+        put("pose", rm.pose_stamped(ts, c2w_to_pose(frame.gt_c2w, stamp, MAP_FRAME)))
