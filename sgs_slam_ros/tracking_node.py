@@ -74,18 +74,7 @@ class TrackingNode(Node):
         self._remote_map_stamp = -1
         self._last_pose_sent = time.monotonic()
         self.reset_listeners: list[Callable[[], None]] = []  # e.g. the composed mapping node's outputs
-        slam = Slam(slam_config(self.params))
-        slam.prepare(self.get_logger().info)  # compile the CPU kernels now, not inside the first frame
-        log = self.get_logger().error
-        if standalone:
-            if self.params["map_source"] != "topic":
-                self.get_logger().warn("standalone tracking_node follows mapping_node/gaussians (map_source:=topic)")
-            pipeline = SlamPipeline(slam, self.params["lockstep"], track=True, map=False, log=log,
-                                    ready_to_track=self._remote_map_ready)  # fmt: skip
-            self.create_subscription(PointCloud2, "mapping_node/gaussians", self._on_gaussians, latched_qos())
-        else:
-            pipeline = SlamPipeline(slam, self.params["lockstep"], track=True, map=True, log=log)
-        self.pipeline = pipeline
+        self.pipeline = pipeline = self._pipeline(standalone)
         self.activity = Activity(pipeline.idle)
         pipeline.pose_listeners.append(self._on_pose)
         pipeline.map_listeners.append(lambda *_: self.activity.end())
@@ -117,6 +106,20 @@ class TrackingNode(Node):
             f"tracking {', '.join(self.camera.watch.topics.values())} with preset {self.params['preset']} "
             f"on {pipeline.slam.device} ({mode}, processing at {size}); map frame '{self.map_frame}' "
             f"({self.alignment.value})"
+        )
+
+    def _pipeline(self, standalone: bool) -> SlamPipeline:
+        """The SLAM and its workers: tracking and mapping here, or tracking against a mapper's map."""
+        slam = Slam(slam_config(self.params))
+        slam.prepare(self.get_logger().info)  # compile the CPU kernels now, not inside the first frame
+        log = self.get_logger().error
+        if not standalone:
+            return SlamPipeline(slam, self.params["lockstep"], track=True, map=True, log=log)
+        if self.params["map_source"] != "topic":
+            self.get_logger().warn("standalone tracking_node follows mapping_node/gaussians (map_source:=topic)")
+        self.create_subscription(PointCloud2, "mapping_node/gaussians", self._on_gaussians, latched_qos())
+        return SlamPipeline(
+            slam, self.params["lockstep"], track=True, map=False, log=log, ready_to_track=self._remote_map_ready
         )
 
     # ------------------------------------------------------------------ inputs

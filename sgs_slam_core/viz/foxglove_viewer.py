@@ -126,42 +126,8 @@ class FoxgloveViewer(StreamingViewer):
     def send(self, snap: Snapshot) -> None:
         """Pose, input, renders, paths, status and (when due) the map's points."""
         t = snap.stamp_ns
-        q = rotmat_to_quat(torch.from_numpy(snap.c2w[:3, :3].copy())).numpy()  # wxyz
-        pos = snap.c2w[:3, 3]
-        tf = fm.FrameTransform(
-            timestamp=_stamp(t),
-            parent_frame_id=MAP_FRAME,
-            child_frame_id=CAMERA_FRAME,
-            translation=fm.Vector3(x=float(pos[0]), y=float(pos[1]), z=float(pos[2])),
-            rotation=fm.Quaternion(x=float(q[1]), y=float(q[2]), z=float(q[3]), w=float(q[0])),
-        )
-        self.tf.log(fm.FrameTransforms(transforms=[tf]), log_time=t)
-        k = snap.intrinsics
-        kk = [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0]
-        self.calibration.log(
-            fm.CameraCalibration(
-                timestamp=_stamp(t),
-                frame_id=CAMERA_FRAME,
-                width=k.width,
-                height=k.height,
-                distortion_model="plumb_bob",
-                D=[0.0] * 5,
-                K=kk,
-                R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-                P=[k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
-            ),
-            log_time=t,
-        )
-        img = self.images
-        img["/camera/image"].log(_image(snap.rgb, "rgb8", t), log_time=t)
-        img["/camera/depth"].log(_image(snap.depth.astype(np.float32), "32FC1", t), log_time=t)
-        if snap.labels is not None:
-            img["/camera/labels"].log(_image(self.table.colorize(snap.labels), "rgb8", t), log_time=t)
-        if snap.render_rgb is not None and snap.render_depth is not None:
-            img["/render/color"].log(_image(snap.render_rgb, "rgb8", t), log_time=t)
-            img["/render/depth"].log(_image(snap.render_depth.astype(np.float32), "32FC1", t), log_time=t)
-        if snap.render_labels is not None:
-            img["/render/semantic"].log(_image(self.table.colorize(snap.render_labels), "rgb8", t), log_time=t)
+        self._send_camera(snap, t)
+        self._send_images(snap, t)
         entities = [
             fm.SceneEntity(
                 timestamp=_stamp(t), frame_id=MAP_FRAME, id="trajectory", lines=[_line(snap.path, (0.12, 0.43, 0.9))]
@@ -189,6 +155,47 @@ class FoxgloveViewer(StreamingViewer):
         )
         if snap.points is not None:
             self.send_points(snap.index, t, snap.points)
+
+    def _send_camera(self, snap: Snapshot, t: int) -> None:
+        """The camera's pose in the map and its calibration."""
+        q = rotmat_to_quat(torch.from_numpy(snap.c2w[:3, :3].copy())).numpy()  # wxyz
+        pos = snap.c2w[:3, 3]
+        tf = fm.FrameTransform(
+            timestamp=_stamp(t),
+            parent_frame_id=MAP_FRAME,
+            child_frame_id=CAMERA_FRAME,
+            translation=fm.Vector3(x=float(pos[0]), y=float(pos[1]), z=float(pos[2])),
+            rotation=fm.Quaternion(x=float(q[1]), y=float(q[2]), z=float(q[3]), w=float(q[0])),
+        )
+        self.tf.log(fm.FrameTransforms(transforms=[tf]), log_time=t)
+        k = snap.intrinsics
+        self.calibration.log(
+            fm.CameraCalibration(
+                timestamp=_stamp(t),
+                frame_id=CAMERA_FRAME,
+                width=k.width,
+                height=k.height,
+                distortion_model="plumb_bob",
+                D=[0.0] * 5,
+                K=[k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+                R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                P=[k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+            ),
+            log_time=t,
+        )
+
+    def _send_images(self, snap: Snapshot, t: int) -> None:
+        """The input images and, when rendered, the map's views."""
+        img = self.images
+        img["/camera/image"].log(_image(snap.rgb, "rgb8", t), log_time=t)
+        img["/camera/depth"].log(_image(snap.depth.astype(np.float32), "32FC1", t), log_time=t)
+        if snap.labels is not None:
+            img["/camera/labels"].log(_image(self.table.colorize(snap.labels), "rgb8", t), log_time=t)
+        if snap.render_rgb is not None and snap.render_depth is not None:
+            img["/render/color"].log(_image(snap.render_rgb, "rgb8", t), log_time=t)
+            img["/render/depth"].log(_image(snap.render_depth.astype(np.float32), "32FC1", t), log_time=t)
+        if snap.render_labels is not None:
+            img["/render/semantic"].log(_image(self.table.colorize(snap.render_labels), "rgb8", t), log_time=t)
 
     def send_points(self, index: int, stamp_ns: int, points: MapPoints) -> None:
         """The Gaussian centres as a packed point cloud in ``map``."""
