@@ -203,7 +203,7 @@ def main() -> int:
     args = p.parse_args()
     overrides = ["device=cpu", *args.set]
     if args.tracking_iterations is not None:
-        overrides.append(f"tracking.iterations={args.tracking_iterations}")
+        overrides.append(f"tracking.adam.iterations={args.tracking_iterations}")
     if args.mapping_iterations is not None:
         it = args.mapping_iterations
         overrides += [f"mapping.iterations={it}", f"mapping.prune_iterations=[0,{it // 2}]"]
@@ -223,7 +223,7 @@ def main() -> int:
                                                       "loops": [asdict(r) for r in rows]}, indent=1))  # fmt: skip
     what = (f"The synthetic room's orbit ({args.loop_frames} frames at {size}, there and back: {period} frames a "
             f"loop) for {args.frames:,} frames through `Slam.process` (lockstep, CPU), preset `{args.preset}`, "
-            f"tracking {config.tracking.iterations} and mapping {config.mapping.iterations} iterations"
+            f"tracking {config.tracking.adam.iterations} and mapping {config.mapping.iterations} iterations"
             f"{' (reduced for time)' if args.tracking_iterations or args.mapping_iterations else ''}; keyframes "
             f"capped at {config.keyframes.max_keyframes} / {config.keyframes.max_megabytes} MiB.")  # fmt: skip
     body = report(rows, samples, plot_path, what)

@@ -69,7 +69,7 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
 
     frames = tiny_frames(scene)  # depth in millimetres, as a 16UC1 camera delivers it
     ctx = new_context()
-    overrides = [f"tracking.iterations={iterations}", f"mapping.iterations={iterations}"]
+    overrides = [f"tracking.adam.iterations={iterations}", f"mapping.iterations={iterations}"]
     params = node_params(overrides=overrides, lockstep=False, input_qos="best_effort", render_rate_hz=2.0,
                          points_rate_hz=1.0, gaussians_rate_hz=0.5, map_path=str(scene / "m.sgsmap"))  # fmt: skip
     nodes = build_slam_nodes(context=ctx, parameter_overrides=params)

@@ -125,7 +125,7 @@ run_suite() {
     step slam_tum 240 $PY bench/bench_slam.py "$tum" --preset tum "${tsets[@]}" --out "$OUT/run_tum"
     step slam_tum_rt 150 $PY bench/bench_slam.py "$tum" --preset tum "${tsets[@]}" --realtime --out "$OUT/run_tum_rt"
     step slam_tum_splatam_budget 300 $PY bench/bench_slam.py "$tum" --preset tum "${tsets[@]}" \
-      --set tracking.early_stop=false --set mapping.iterations=30 --set mapping.lr_means=1e-4 --out "$OUT/run_tum_splatam"
+      --set tracking.adam.early_stop=false --set mapping.iterations=30 --set mapping.lr_means=1e-4 --out "$OUT/run_tum_splatam"
   fi
   for run in "$OUT"/run_*; do  # keep the small files; maps and renders stay behind
     [ -d "$run" ] && find "$run" -maxdepth 1 -type f \( -name '*.sgsmap' -o -name '*.ply' \) -delete

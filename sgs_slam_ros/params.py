@@ -3,7 +3,7 @@
 Every parameter is either read-only (fixed at start-up: ``ros2 param describe`` says so) or applied
 live: :class:`NodeParams` keeps ``values`` current and calls the node's hooks after a successful
 ``set``. All core settings are reachable through ``preset``, ``config_file`` and ``overrides``
-(``key=value`` strings, e.g. ``tracking.iterations=30``), resolved exactly like ``sgs-slam run``.
+(``key=value`` strings, e.g. ``tracking.adam.iterations=30``), resolved exactly like ``sgs-slam run``.
 """
 
 from __future__ import annotations

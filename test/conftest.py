@@ -37,4 +37,4 @@ def tiny_scene(tmp_path_factory) -> Path:
 # CI-sized SLAM settings for the tiny scene (the accuracy targets are checked by benchmarks). At
 # 64x48 a pixel is 2.5x wider than at the preset's 160x120, so splats grow 10x faster to cover it
 # within 15 mapping iterations.
-FAST_SLAM = ("tracking.iterations=30", "mapping.iterations=15", "mapping.lr_scales=1e-2")
+FAST_SLAM = ("tracking.adam.iterations=30", "mapping.iterations=15", "mapping.lr_scales=1e-2")

@@ -33,7 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", choices=list_presets(), help="config preset (default: chosen from the dataset)")
     p.add_argument("--config", type=Path, help="YAML file applied after the preset")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config value, e.g. --set tracking.iterations=60 (repeatable)")  # fmt: skip
+                   help="override a config value, e.g. --set tracking.adam.iterations=60 (repeatable)")  # fmt: skip
     p.add_argument("--device", choices=["auto", "cpu", "cuda"], help="compute device (default: config)")
     p.add_argument("--out", type=Path, required=True, help="run folder (must be empty unless --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty run folder")

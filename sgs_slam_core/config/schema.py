@@ -22,6 +22,10 @@ from sgs_slam_core.semantics import SemanticSettings
 __all__ = ["DeviceName", "SlamConfig"]
 
 DeviceName = Literal["auto", "cpu", "cuda"]
+# tracking keys of earlier versions: now in the motion section, or in the Adam tracker's own
+_MOTION_KEYS = ("constant_velocity", "icp_iterations", "icp_max_distance_m", "icp_min_inliers", "icp_min_gap")
+_ADAM_KEYS = ("iterations", "lr_rotation", "lr_translation", "early_stop", "stop_rel_improvement", "stop_patience",
+              "min_iterations", "stop_check_every")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -50,8 +54,8 @@ class SlamConfig:
 
     # keys of earlier versions and where they live now (config files and saved maps keep working)
     MOVED_KEYS: ClassVar[dict[str, str]] = {
-        f"tracking.{key}": f"motion.{key}"
-        for key in ("constant_velocity", "icp_iterations", "icp_max_distance_m", "icp_min_inliers", "icp_min_gap")
+        **{f"tracking.{key}": f"motion.{key}" for key in _MOTION_KEYS},
+        **{f"tracking.{key}": f"tracking.adam.{key}" for key in _ADAM_KEYS},
     }
 
     def __post_init__(self) -> None:

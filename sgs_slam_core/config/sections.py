@@ -13,6 +13,7 @@ from sgs_slam_core.geometry.gravity import OPTICAL_IN_BODY, pose_from_xyz_rpy
 from sgs_slam_core.geometry.icp import IcpSettings
 
 __all__ = [
+    "AdamTrackerSettings",
     "DensifySettings",
     "GaussNewtonSettings",
     "GuardSettings",
@@ -64,7 +65,7 @@ class GaussNewtonSettings:
         semantic_scale_m: the same for a semantic feature difference of 1; 0 = no semantic term.
         adam_steps: steps of the Adam tracker after the Gauss-Newton solve (its loss, keeping the
             best evaluated pose, so never worse than the solve by that loss); 0 = none.
-        adam_lr_scale: those steps' learning rates as a fraction of ``tracking.lr_*`` (the solve
+        adam_lr_scale: those steps' learning rates as a fraction of ``tracking.adam.lr_*`` (the solve
             starts them near the optimum, where the full rates overshoot).
     """
 
@@ -97,17 +98,13 @@ class GaussNewtonSettings:
 
 
 @dataclass(frozen=True)
-class TrackingSettings:
-    """Camera tracking against the fixed map.
+class AdamTrackerSettings:
+    """The paper's tracker (``tracking.method: adam``): Adam steps on the rendering loss.
 
     Attributes:
-        method: ``adam`` (the paper's: Adam steps on the rendering loss, each rendering the map and
-            back-propagating through the renderer) or ``gauss_newton`` (``gauss_newton`` section).
         iterations: budget of optimiser steps per frame.
         lr_rotation, lr_translation: Adam learning rates of the camera-frame rotation (rad) and
             translation (m) increment; the paper's quaternion rates map to twice their value here.
-        sil_threshold: only pixels with rendered silhouette above this (and valid depth) count.
-        weight_depth, weight_color, weight_semantic: weights of the L1 sums.
         early_stop: stop before the budget once the best loss stops improving.
         stop_rel_improvement: an iteration "improves" when it lowers the best loss by more than this
             fraction.
@@ -117,36 +114,54 @@ class TrackingSettings:
             tracking ends when a newer frame waits (the pipeline's ``newer_frame_waiting``).
         stop_check_every: read the stop test back from the device every n steps (0 = auto: every
             step on the CPU, where reading is free, every 5 on CUDA, so the loop does not wait on the GPU).
-        use_gt_pose: replace tracking by the ground-truth pose (ablation; needs ground truth).
-        gauss_newton: the Gauss-Newton tracker's settings (``method: gauss_newton``).
     """
 
-    method: TrackerName = "adam"
     iterations: int = 40
     lr_rotation: float = 8e-4
     lr_translation: float = 2e-3
-    sil_threshold: float = 0.99
-    weight_depth: float = 1.0
-    weight_color: float = 0.5
-    weight_semantic: float = 0.05
     early_stop: bool = True
     stop_rel_improvement: float = 1e-3
     stop_patience: int = 5
     min_iterations: int = 2
     stop_check_every: int = 0
+
+    def __post_init__(self) -> None:
+        _positive("tracking.adam", iterations=self.iterations, lr_rotation=self.lr_rotation,
+                  lr_translation=self.lr_translation, stop_patience=self.stop_patience)  # fmt: skip
+        _non_negative("tracking.adam", min_iterations=self.min_iterations, stop_check_every=self.stop_check_every)
+        if not 0 <= self.stop_rel_improvement < 1:
+            raise ConfigError(f"tracking.adam.stop_rel_improvement must be in [0, 1), got {self.stop_rel_improvement}")
+
+
+@dataclass(frozen=True)
+class TrackingSettings:
+    """Camera tracking against the fixed map: the tracker, and the loss that judges every tracker's pose.
+
+    Attributes:
+        method: ``adam`` (the paper's: Adam steps on the rendering loss, each rendering the map and
+            back-propagating through the renderer; ``adam`` section) or ``gauss_newton``
+            (``gauss_newton`` section).
+        sil_threshold: only pixels with rendered silhouette above this (and valid depth) count.
+        weight_depth, weight_color, weight_semantic: weights of the L1 sums.
+        use_gt_pose: replace tracking by the ground-truth pose (ablation; needs ground truth).
+        adam: the Adam tracker's settings.
+        gauss_newton: the Gauss-Newton tracker's settings.
+    """
+
+    method: TrackerName = "adam"
+    sil_threshold: float = 0.99
+    weight_depth: float = 1.0
+    weight_color: float = 0.5
+    weight_semantic: float = 0.05
     use_gt_pose: bool = False
+    adam: AdamTrackerSettings = field(default_factory=AdamTrackerSettings)
     gauss_newton: GaussNewtonSettings = field(default_factory=GaussNewtonSettings)
 
     def __post_init__(self) -> None:
-        _positive("tracking", iterations=self.iterations, lr_rotation=self.lr_rotation,
-                  lr_translation=self.lr_translation, stop_patience=self.stop_patience)  # fmt: skip
         _non_negative("tracking", weight_depth=self.weight_depth, weight_color=self.weight_color,
-                      weight_semantic=self.weight_semantic, min_iterations=self.min_iterations,
-                      stop_check_every=self.stop_check_every)  # fmt: skip
+                      weight_semantic=self.weight_semantic)  # fmt: skip
         if not 0 <= self.sil_threshold < 1:
             raise ConfigError(f"tracking.sil_threshold must be in [0, 1), got {self.sil_threshold}")
-        if not 0 <= self.stop_rel_improvement < 1:
-            raise ConfigError(f"tracking.stop_rel_improvement must be in [0, 1), got {self.stop_rel_improvement}")
 
 
 @dataclass(frozen=True)

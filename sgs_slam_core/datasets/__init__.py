@@ -58,4 +58,4 @@ def open_dataset(
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path} does not exist")
-    return dataset_format(path, fmt).open(path, options or DatasetOptions(), streams or {})
+    return dataset_format(path, fmt).opener(path, options or DatasetOptions(), streams or {})

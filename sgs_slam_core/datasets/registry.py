@@ -32,7 +32,7 @@ class DatasetFormat:
     name: str
     expects: str  # what a folder of this format holds, for the error when nothing matches
     detect: Callable[[Path], bool]
-    open: Callable[[Path, DatasetOptions, Mapping[str, str]], Dataset]  # streams: renamed inputs (e.g. bag topics)
+    opener: Callable[[Path, DatasetOptions, Mapping[str, str]], Dataset]  # streams: renamed inputs (e.g. bag topics)
     preset: Callable[[Path], str]
 
 

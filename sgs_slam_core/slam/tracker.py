@@ -60,24 +60,24 @@ def track(
     fixed = gaussians.detach()
     device = fixed.device
     pose = PoseParameters(init_w2c, device)
-    adam = FusedAdam({"phi": pose.phi, "rho": pose.rho}, {"phi": s.lr_rotation, "rho": s.lr_translation})
-    check_every = s.stop_check_every or (5 if device.type == "cuda" else 1)
+    adam = FusedAdam({"phi": pose.phi, "rho": pose.rho}, {"phi": s.adam.lr_rotation, "rho": s.adam.lr_translation})
+    check_every = s.adam.stop_check_every or (5 if device.type == "cuda" else 1)
     best = _Best.start(device)
     converged, it = False, 0
-    for it in range(1, s.iterations + 1):
+    for it in range(1, s.adam.iterations + 1):
         with stage("track.render"):
             out = render(fixed, frame.intrinsics, pose.w2c(), render_settings, with_semantics=use_semantics)
         with stage("track.loss"):
             loss = tracking_loss(out, frame, s, use_semantics)
-            best.update(loss, pose.xi(), s.stop_rel_improvement)
-        if it % check_every == 0 or it == s.iterations:
+            best.update(loss, pose.xi(), s.adam.stop_rel_improvement)
+        if it % check_every == 0 or it == s.adam.iterations:
             pixels, stale = (int(v) for v in torch.stack([loss.pixels, best.stale]).tolist())  # the one host read
             if pixels == 0:
                 break
-            if s.early_stop and it >= s.min_iterations and stale >= s.stop_patience:
+            if s.adam.early_stop and it >= s.adam.min_iterations and stale >= s.adam.stop_patience:
                 converged = True
                 break
-            if it >= s.min_iterations and newer_frame_waiting is not None and newer_frame_waiting():
+            if it >= s.adam.min_iterations and newer_frame_waiting is not None and newer_frame_waiting():
                 break
         with stage("track.backward"):
             loss.total.backward()

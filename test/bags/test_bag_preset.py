@@ -18,7 +18,7 @@ def test_convert_stores_the_folder_preset_and_run_uses_it(tiny_scene, tmp_path, 
     assert bag_main(["convert", str(tiny_scene), "--out", str(bag), "--max-frames", "2"]) == 0
     assert "(preset synthetic)" in capsys.readouterr().out
     assert read_bag_preset(bag) == default_preset(tiny_scene, "auto") == default_preset(bag, "auto") == "synthetic"
-    quick = ["--set", "tracking.iterations=2", "--set", "mapping.iterations=2", "--quiet"]
+    quick = ["--set", "tracking.adam.iterations=2", "--set", "mapping.iterations=2", "--quiet"]
     assert slam_main(["run", str(bag), "--out", str(tmp_path / "run"), "--max-frames", "2", *quick]) == 0
     assert "preset synthetic" in capsys.readouterr().err
     assert yaml.safe_load((tmp_path / "run" / "run.yaml").read_text())["preset"] == "synthetic"

@@ -20,7 +20,7 @@ import torch
 
 torch.set_default_device("meta")  # before anything of the project runs
 
-FAST = ["--set", "tracking.iterations=6", "--set", "mapping.iterations=4", "--quiet"]
+FAST = ["--set", "tracking.adam.iterations=6", "--set", "mapping.iterations=4", "--quiet"]
 
 
 def cli(*args: str) -> Callable[[], None]:

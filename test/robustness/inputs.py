@@ -17,7 +17,7 @@ from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.mapio import load_map, write_any_map
 
 # CI-sized runs: a few frames, a few iterations (the matrix checks outcomes, not accuracy)
-FAST_RUN = ("--max-frames", "3", "--quiet", "--set", "tracking.iterations=3", "--set", "mapping.iterations=3")
+FAST_RUN = ("--max-frames", "3", "--quiet", "--set", "tracking.adam.iterations=3", "--set", "mapping.iterations=3")
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from sgs_slam_core.datasets.base import RecordDataset
 from sgs_slam_core.mapio import load_map
 from sgs_slam_core.metrics import read_tum_trajectory
 
-FAST = ("--quiet", "--set", "tracking.iterations=3", "--set", "mapping.iterations=3")
+FAST = ("--quiet", "--set", "tracking.adam.iterations=3", "--set", "mapping.iterations=3")
 
 
 def interrupt_at(monkeypatch: pytest.MonkeyPatch, frame: int, times: int = 1) -> None:
@@ -92,7 +92,7 @@ def cli(*args: str, **kwargs) -> subprocess.Popen:
 def test_a_real_ctrl_c_leaves_a_complete_folder_or_none(tiny_scene, tmp_path):
     out = tmp_path / "run"
     # ~0.3 s a frame on the 2-core CI machine (12 frames): the signal 1 s in lands mid-run
-    iterations = ("--set", "tracking.iterations=40", "--set", "mapping.iterations=150")
+    iterations = ("--set", "tracking.adam.iterations=40", "--set", "mapping.iterations=150")
     proc = cli("run", str(tiny_scene), "--out", str(out), "--quiet", *iterations)
     assert proc.stderr is not None
     for line in proc.stderr:  # the run prints this line just before its frame loop

@@ -219,7 +219,7 @@ def test_label_adapter_bounds_ids_without_a_pass_for_narrow_encodings():
     ("param", "message"),
     [
         ("preset:=nope", "unknown preset 'nope'"),
-        ("overrides:=[tracking.iterations=abc]", "tracking.iterations: expected an integer, got 'abc'"),
+        ("overrides:=[tracking.adam.iterations=abc]", "tracking.adam.iterations: expected an integer, got 'abc'"),
         ("config_file:=/nonexistent/cfg.yaml", "cannot read config file /nonexistent/cfg.yaml"),
     ],
 )

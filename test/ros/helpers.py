@@ -24,7 +24,7 @@ from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.frame import Frame
 from sgs_slam_ros.messages import camera_info_msg, image_msg
 
-FAST = ["tracking.iterations=15", "mapping.iterations=8"]
+FAST = ["tracking.adam.iterations=15", "mapping.iterations=8"]
 CAMERA = "camera_color_optical_frame"
 
 

@@ -56,7 +56,7 @@ def test_every_parameter_has_a_value_and_a_description_over_the_services(system,
     assert not unset, f"parameters without a value: {unset}"
     by_name = dict(zip(names, values, strict=True))
     assert by_name["preset"].string_value == "synthetic"
-    assert list(by_name["overrides"].string_array_value) == ["tracking.iterations=15", "mapping.iterations=8"]
+    assert list(by_name["overrides"].string_array_value) == ["tracking.adam.iterations=15", "mapping.iterations=8"]
     described = done(client.describe_parameters([s.name for s in specs])).descriptors
     assert all(d.description for d in described)
     assert {d.name for d in described if d.read_only} == {s.name for s in specs if s.read_only}

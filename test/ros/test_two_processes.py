@@ -69,7 +69,7 @@ def test_a_signal_while_mapping_runs_exits_cleanly(tiny_scene, signum):
     """The signal lands while the mapping worker is busy: the worker stops first, exit code 0."""
     frame = open_dataset(tiny_scene)[0]
     domain = random.randint(1, 100)
-    node = start("sgs_slam_ros.slam_node", domain, overrides=["tracking.iterations=15", "mapping.iterations=3000"])
+    node = start("sgs_slam_ros.slam_node", domain, overrides=["tracking.adam.iterations=15", "mapping.iterations=3000"])
     ctx = new_context(domain)
     feeder = Feeder(ctx)
     spinner = Spinner(ctx, [feeder])

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from sgs_slam_core.config import load_config
-from sgs_slam_core.config.sections import MappingSettings, TrackingSettings
+from sgs_slam_core.config.sections import AdamTrackerSettings, MappingSettings, TrackingSettings
 from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.geometry import se3_exp
 from sgs_slam_core.render import RenderSettings, render
@@ -63,16 +63,21 @@ def test_an_empty_mask_gives_zero_pixels_and_infinite_residual():
     assert float(mapping_loss(out, dataclasses.replace(frame, depth=torch.zeros(h, w)), MappingSettings(), False)) >= 0
 
 
+def adam_settings(**adam: float) -> TrackingSettings:
+    """Tracking with these Adam settings over fast rates and 60 steps, on a half-confident mask."""
+    steps = {"iterations": 60, "lr_rotation": 4e-3, "lr_translation": 4e-3, **adam}
+    return TrackingSettings(sil_threshold=0.5, adam=AdamTrackerSettings(**steps))
+
+
 def test_reading_the_stop_test_less_often_changes_nothing_but_the_stop_step():
     gm, frame = target_frame()
     start = se3_exp(torch.tensor([0.02, -0.01, 0.01, 0.01, -0.015, 0.005], dtype=torch.float64)).numpy()
-    base = TrackingSettings(iterations=60, lr_rotation=4e-3, lr_translation=4e-3, sil_threshold=0.5)
-    fixed = [track(gm, frame, start, dataclasses.replace(base, early_stop=False, stop_check_every=c), SETTINGS, True)
+    fixed = [track(gm, frame, start, adam_settings(early_stop=False, stop_check_every=c), SETTINGS, True)
              for c in (1, 7)]  # fmt: skip
     assert fixed[0].iterations == fixed[1].iterations == 60
     assert np.array_equal(fixed[0].w2c, fixed[1].w2c) and fixed[0].loss == fixed[1].loss
     assert np.abs(fixed[0].w2c - np.eye(4)).max() < 0.2 * np.abs(start - np.eye(4)).max()  # it converged
-    every, sparse = (track(gm, frame, start, dataclasses.replace(base, stop_check_every=c), SETTINGS, True)
+    every, sparse = (track(gm, frame, start, adam_settings(stop_check_every=c), SETTINGS, True)
                      for c in (1, 7))  # fmt: skip
     assert every.converged and sparse.converged
     assert sparse.iterations % 7 == 0 and every.iterations <= sparse.iterations  # stops only where it reads
@@ -108,11 +113,11 @@ def test_the_icp_start_runs_after_dropped_frames_only_and_helps_there(tiny_scene
 def test_a_newer_frame_waiting_ends_tracking_after_its_minimum_steps():
     gm, frame = target_frame()
     start = se3_exp(torch.tensor([0.02, -0.01, 0.01, 0.01, -0.015, 0.005], dtype=torch.float64)).numpy()
-    s = TrackingSettings(iterations=60, min_iterations=3, lr_rotation=4e-3, lr_translation=4e-3, sil_threshold=0.5)
+    s = adam_settings(min_iterations=3)
     asked: list[int] = []
     cut = track(gm, frame, start, s, SETTINGS, True, newer_frame_waiting=lambda: asked.append(1) or True)
     assert cut.iterations == 3 and not cut.converged and len(asked) == 1  # asked from the minimum on only
     full = track(gm, frame, start, s, SETTINGS, True, newer_frame_waiting=lambda: False)
     assert full.iterations > 3 and full.loss < cut.loss
-    alone = track(gm, frame, start, dataclasses.replace(s, iterations=3), SETTINGS, True)
+    alone = track(gm, frame, start, adam_settings(min_iterations=3, iterations=3), SETTINGS, True)
     assert np.array_equal(cut.w2c, alone.w2c)  # the best of the steps made, as a 3-step budget gives

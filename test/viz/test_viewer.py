@@ -23,7 +23,7 @@ from sgs_slam_core.viz.viewer import StreamingViewer
 rerun_chunk = pytest.importorskip("rerun.chunk", reason="rerun-sdk (extra 'viewer') is not installed")
 pytest.importorskip("foxglove", reason="foxglove-sdk (extra 'viewer') is not installed")
 
-QUICK = ("tracking.iterations=3", "mapping.iterations=3", "device=cpu")
+QUICK = ("tracking.adam.iterations=3", "mapping.iterations=3", "device=cpu")
 FRAMES = 3
 
 

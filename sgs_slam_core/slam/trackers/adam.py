@@ -19,7 +19,7 @@ __all__ = ["AdamTracker"]
 class AdamTracker:
     """Every step renders the map and back-propagates the L1 depth/colour/semantic loss to the pose.
 
-    Faithful to the paper (its loss, mask and rates); ``tracking.iterations`` steps at most, fewer
+    Faithful to the paper (its loss, mask and rates); ``tracking.adam.iterations`` steps at most, fewer
     with early stopping.
     """
 

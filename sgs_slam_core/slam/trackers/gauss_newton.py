@@ -74,8 +74,10 @@ class GaussNewtonTracker:
         steps = sum(self.icp.steps_for(frame.intrinsics.width)) * self.gn.renders
         if self.gn.adam_steps > 0:
             scale = self.gn.adam_lr_scale
-            adam = replace(self.settings, iterations=self.gn.adam_steps, lr_rotation=self.settings.lr_rotation * scale,
-                           lr_translation=self.settings.lr_translation * scale)  # fmt: skip
+            a = self.settings.adam
+            polish = replace(a, iterations=self.gn.adam_steps, lr_rotation=a.lr_rotation * scale,
+                             lr_translation=a.lr_translation * scale)  # fmt: skip
+            adam = replace(self.settings, adam=polish)
             polished = track(gaussians, frame, w2c.cpu().numpy(), adam, self.render_settings, use_semantics,
                              newer_frame_waiting)  # fmt: skip
             return replace(polished, iterations=steps + polished.iterations, time_s=time.perf_counter() - t0,
