@@ -38,7 +38,7 @@ def test_run_writes_the_documented_outputs(run_dir, capsys):
     assert metrics["lpips"] is None and "LPIPS" in metrics["lpips_note"]
     stamps, poses = read_tum_trajectory(run_dir / "trajectory.txt")
     assert len(stamps) == 8 and poses.shape == (8, 4, 4)
-    assert yaml.safe_load((run_dir / "config.yaml").read_text())["tracking"]["iterations"] == 30
+    assert yaml.safe_load((run_dir / "config.yaml").read_text())["tracking"]["adam"]["iterations"] == 30
     renders = sorted((run_dir / "renders").glob("*.png"))
     assert renders and cv2.imread(str(renders[0])).shape[0] >= 2 * 48
     saved = load_map(run_dir / "map.sgsmap")
