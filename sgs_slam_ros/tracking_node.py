@@ -154,7 +154,12 @@ class TrackingNode(Node):
             return
         if table == self.pipeline.snapshot().codec.table:
             log.info(f"label source's table '{table.name}' ({len(table)} classes) is the map's")
-        elif self.pipeline.use_label_table(table):
+            return
+        try:
+            used = self.pipeline.use_label_table(table)
+        except TimeoutError:
+            used = False  # the workers stayed busy: frames are being processed, so the map's table stays
+        if used:
             log.info(f"labels: using the label source's table '{table.name}' ({len(table)} classes)")
         else:
             log.warn(f"the label source's table '{table.name}' differs from the map's; call ~/reset to use it")

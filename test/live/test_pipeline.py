@@ -14,6 +14,7 @@ from sgs_slam_core.config import load_config
 from sgs_slam_core.config.sections import LiveSettings
 from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.errors import DatasetError
+from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.metrics import read_tum_trajectory
 from sgs_slam_core.runner.realtime import _Replay, release_times, run_realtime
@@ -299,3 +300,26 @@ def test_cli_realtime_writes_the_counts(tiny_scene, tmp_path):
     assert metrics["frames_tracked"] + metrics["frames_dropped"] == 12
     stamps, _ = read_tum_trajectory(out / "trajectory.txt")
     assert len(stamps) == metrics["frames_tracked"] == metrics["frames"]
+
+
+def test_nodes_reach_the_slam_through_the_pipeline(tiny_scene):
+    dataset = open_dataset(tiny_scene)
+    slam = Slam(load_config("synthetic", None, [*FAST_SLAM, "device=cpu"]), dataset.label_table)
+    pipeline = SlamPipeline(slam, lockstep=True, log=lambda _: None)
+    try:
+        empty = pipeline.snapshot()
+        assert empty.frames_processed == 0 and empty.last_c2w is None and len(empty.gaussians) == 0
+        other = LabelTable.nyu40()
+        assert pipeline.use_label_table(other) and pipeline.snapshot().codec.table == other  # nothing mapped yet
+        pipeline.submit_frame(dataset[0])
+        assert pipeline.wait_idle(60.0)
+        snap = pipeline.snapshot()
+        assert snap.frames_processed == 1 and snap.last_stamp_ns == dataset[0].stamp_ns and len(snap.gaussians) > 0
+        assert np.array_equal(snap.last_c2w, slam.trajectory[-1][2]) and snap.last_c2w is not slam.trajectory[-1][2]
+        assert not pipeline.use_label_table(dataset.label_table)  # the map has classes now: the table stays
+        view = pipeline.render_view(snap, snap.last_c2w)
+        assert view.color.shape == (48, 64, 3) and float(view.silhouette.mean()) > 0.5
+        pipeline.count_dropped(2)
+        assert pipeline.stats.dropped_frames == 2
+    finally:
+        pipeline.shutdown()
