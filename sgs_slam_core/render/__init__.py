@@ -1,4 +1,4 @@
-"""Differentiable multi-channel Gaussian renderer (torch reference backend, optional gsplat)."""
+"""Differentiable multi-channel Gaussian renderer: settings, the PyTorch maths, and ``render()`` over the kernels."""
 
 from sgs_slam_core.render.api import CameraGaussians, RenderOutput, render, resolve_backend, to_camera
 from sgs_slam_core.render.settings import BackendName, RenderSettings

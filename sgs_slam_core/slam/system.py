@@ -10,23 +10,20 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from sgs_slam_core import native
 from sgs_slam_core.config.loader import config_to_dict
 from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.editing import EditRecord, EditRequest
 from sgs_slam_core.errors import BackendUnavailableError, FrameError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.gaussians import GaussianMap
-from sgs_slam_core.geometry import icp_native
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.se3 import se3_inverse
+from sgs_slam_core.kernels import build_kernels
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.mapio.native import MapFile
 from sgs_slam_core.profiling import stage
-from sgs_slam_core.render import cpu_backend
-from sgs_slam_core.render.api import RenderOutput, render
+from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.semantics import SemanticCodec
-from sgs_slam_core.slam import photometric
 from sgs_slam_core.slam.densify import densify_mask, gaussians_from_pixels, over_budget, scene_radius
 from sgs_slam_core.slam.edits import EditLocks
 from sgs_slam_core.slam.frame_data import CompactFrame, FrameTensors, resize_arrays
@@ -127,14 +124,7 @@ class Slam:
 
         ``announce`` gets a line for each kernel that must be compiled first (about a minute each).
         """
-        extensions = []
-        if self.device.type == "cpu":
-            if self.config.render.backend in ("auto", "cpu"):
-                extensions.append(cpu_backend.EXTENSION)
-            extensions.append(photometric.EXTENSION)
-            if self.config.tracking.method == "gauss_newton" and self.config.render.backend in ("auto", "cpu"):
-                extensions.append(icp_native.EXTENSION)
-        native.prepare(extensions, announce)
+        self.kernels.prepare(announce)
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
@@ -160,7 +150,8 @@ class Slam:
         self._min_interval_ns: int | None = None  # shortest stamp gap between two tracked frames
         icp = self.config.tracking.icp
         self._icp = None if icp is None else IcpInit(icp, self.config.tracking.icp_min_inliers)
-        self.tracker = build_tracker(self.config.tracking, self.config.render)
+        self.kernels = build_kernels(self.config.render, self.device)
+        self.tracker = build_tracker(self.config.tracking, self.kernels)
 
     @property
     def num_gaussians(self) -> int:
@@ -429,9 +420,7 @@ class Slam:
             mask = data.valid
         else:
             with torch.no_grad():
-                out = render(
-                    self.gaussians, data.intrinsics, se3_inverse(c2w_t), self.config.render, with_semantics=False
-                )
+                out = self.kernels.render(self.gaussians, data.intrinsics, se3_inverse(c2w_t), with_semantics=False)
             mask = densify_mask(out, data, self.config.densify)
         scale = self.config.densify.resolution_scale
         source = data
@@ -477,7 +466,7 @@ class Slam:
             frames.append(WindowFrame(kf_data, w2c, weight))
         w2c_now = torch.as_tensor(np.linalg.inv(c2w), dtype=torch.float32, device=self.device)
         frames.append(WindowFrame(data, w2c_now, window.weights[-1]))
-        return map_window(self.gaussians, frames, self.config.mapping, self.config.render, self.scene_radius, use_sem,
+        return map_window(self.gaussians, frames, self.config.mapping, self.kernels, self.scene_radius, use_sem,
                           self.rng, self.locked_labels, between_iterations)  # fmt: skip
 
     def _refresh_labels(self) -> None:
@@ -510,7 +499,7 @@ class Slam:
         if k is None:
             raise FrameError("no frame processed yet: give the intrinsics to render with")
         w2c = torch.as_tensor(np.linalg.inv(c2w), dtype=torch.float32, device=self.device)
-        return render(self.gaussians, k, w2c, self.config.render, with_semantics=with_semantics)
+        return self.kernels.render(self.gaussians, k, w2c, with_semantics=with_semantics)
 
     def keyframe_poses(self) -> list[tuple[int, np.ndarray]]:
         """(frame index, c2w) of every keyframe, those the store has let go included."""

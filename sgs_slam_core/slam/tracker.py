@@ -11,12 +11,11 @@ import torch
 from torch import Tensor
 
 from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.profiling import stage
-from sgs_slam_core.render.api import render
-from sgs_slam_core.render.settings import RenderSettings
 from sgs_slam_core.slam.adam import FusedAdam
 from sgs_slam_core.slam.frame_data import FrameTensors
-from sgs_slam_core.slam.losses import TrackingLoss, tracking_loss
+from sgs_slam_core.slam.losses import TrackingLoss
 from sgs_slam_core.slam.pose import PoseParameters
 from sgs_slam_core.slam.settings import TrackingSettings
 
@@ -43,7 +42,7 @@ def track(
     frame: FrameTensors,
     init_w2c: np.ndarray,
     s: TrackingSettings,
-    render_settings: RenderSettings,
+    kernels: Kernels,
     use_semantics: bool,
     newer_frame_waiting: Callable[[], bool] | None = None,
 ) -> TrackResult:
@@ -66,9 +65,9 @@ def track(
     converged, it = False, 0
     for it in range(1, s.iterations + 1):
         with stage("track.render"):
-            out = render(fixed, frame.intrinsics, pose.w2c(), render_settings, with_semantics=use_semantics)
+            out = kernels.render(fixed, frame.intrinsics, pose.w2c(), with_semantics=use_semantics)
         with stage("track.loss"):
-            loss = tracking_loss(out, frame, s, use_semantics)
+            loss = kernels.tracking_loss(out, frame, s, use_semantics)
             best.update(loss, pose.xi(), s.stop_rel_improvement)
         if it % check_every == 0 or it == s.iterations:
             pixels, stale = (int(v) for v in torch.stack([loss.pixels, best.stale]).tolist())  # the one host read
