@@ -82,12 +82,7 @@ def track(
             loss.total.backward()
         with stage("track.step"):
             adam.step()
-    value, pixels, residual = (float(v) for v in torch.stack([best.loss, best.pixels.float(), best.residual]).tolist())
-    if pixels == 0:  # no pixel was ever explained: keep the initial pose
-        return TrackResult(init_w2c.copy(), it, converged, float("inf"), 0.0, float("inf"), 0.0,
-                           time.perf_counter() - t0)  # fmt: skip
-    return TrackResult(pose.numpy(best.xi), it, converged, value, value / pixels, residual,
-                       pixels / frame.depth.numel(), time.perf_counter() - t0)  # fmt: skip
+    return best.result(pose, init_w2c, it, converged, frame.depth.numel(), t0)
 
 
 @dataclass
@@ -116,3 +111,36 @@ class _Best:
         self.xi = torch.where(better, xi, self.xi)
         self.pixels = torch.where(better, loss.pixels, self.pixels)
         self.residual = torch.where(better, loss.depth_residual_m, self.residual)
+
+    def result(
+        self, pose: PoseParameters, init_w2c: np.ndarray, it: int, converged: bool, num_pixels: int, t0: float
+    ) -> TrackResult:
+        """The best pose and its loss, read back in one host read; the initial pose if nothing was explained.
+
+        ``t0``: when tracking started (``time.perf_counter()``).
+        """
+        value, pixels, residual = (
+            float(v) for v in torch.stack([self.loss, self.pixels.float(), self.residual]).tolist()
+        )
+        elapsed = time.perf_counter() - t0
+        if pixels == 0:  # no pixel was ever explained: keep the initial pose
+            return TrackResult(
+                w2c=init_w2c.copy(),
+                iterations=it,
+                converged=converged,
+                loss=float("inf"),
+                loss_per_pixel=0.0,
+                depth_residual_m=float("inf"),
+                valid_fraction=0.0,
+                time_s=elapsed,
+            )
+        return TrackResult(
+            w2c=pose.numpy(self.xi),
+            iterations=it,
+            converged=converged,
+            loss=value,
+            loss_per_pixel=value / pixels,
+            depth_residual_m=residual,
+            valid_fraction=pixels / num_pixels,
+            time_s=elapsed,
+        )

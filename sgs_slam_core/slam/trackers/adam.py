@@ -35,6 +35,5 @@ class AdamTracker:
         newer_frame_waiting: Callable[[], bool] | None = None,
     ) -> TrackResult:
         """Adam from ``init_w2c``, keeping the best evaluated pose (one render per step)."""
-        result = track(gaussians, frame, init_w2c, self.settings, self.kernels, use_semantics,
-                       newer_frame_waiting)  # fmt: skip
+        result = track(gaussians, frame, init_w2c, self.settings, self.kernels, use_semantics, newer_frame_waiting)
         return replace(result, renders=result.iterations)
