@@ -16,9 +16,7 @@ setup(
     packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
     package_data={
         "sgs_slam_core.config": ["presets/*.yaml"],
-        "sgs_slam_core.geometry": ["cpu/*.cpp"],
-        "sgs_slam_core.render": ["cpu/*.cpp"],
-        "sgs_slam_core.slam": ["cpu/*.cpp"],
+        "sgs_slam_core.kernels.cpu": ["*.cpp"],
     },
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),

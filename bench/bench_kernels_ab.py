@@ -1,6 +1,6 @@
 """The compiled CPU kernels of a git revision against the working tree's, in one process.
 
-Builds the revision's ``render/cpu/raster.cpp`` and ``slam/cpu/photometric.cpp`` beside the working
+Builds the revision's ``kernels/cpu/raster.cpp`` and ``kernels/cpu/photometric.cpp`` beside the working
 tree's (same flags), runs a dataset (default: the synthetic room) for ``--frames`` frames to get a
 realistic map, then
 times every stage of a mapping render (projection, binning, compositing, its backward, the
@@ -35,12 +35,11 @@ from sgs_slam_core.cli.demo import default_room_dir, ensure_room
 from sgs_slam_core.cli.run import default_preset
 from sgs_slam_core.config import load_config
 from sgs_slam_core.datasets import DatasetOptions, open_dataset
+from sgs_slam_core.kernels.cpu.extensions import PHOTOMETRIC, RENDER
 from sgs_slam_core.native import _CFLAGS
-from sgs_slam_core.render import cpu_backend
-from sgs_slam_core.slam import photometric
 from sgs_slam_core.slam.system import Slam
 
-SOURCES = {"render": "sgs_slam_core/render/cpu/raster.cpp", "photometric": "sgs_slam_core/slam/cpu/photometric.cpp"}
+SOURCES = {"render": "sgs_slam_core/kernels/cpu/raster.cpp", "photometric": "sgs_slam_core/kernels/cpu/photometric.cpp"}
 STAGES = ("prepare", "bin", "forward", "backward", "world backward")
 
 
@@ -111,7 +110,7 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
         old = {key: build_revision(args.rev, key, Path(folder)) for key in SOURCES}
-    new = {"render": cpu_backend.extension(), "photometric": photometric.EXTENSION.module()}
+    new = {"render": RENDER.module(), "photometric": PHOTOMETRIC.module()}
     if args.scene and args.scene.exists():
         scene = torch.load(args.scene, weights_only=False)
     else:

@@ -25,7 +25,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import append_section, markdown_table
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry import Intrinsics, se3_exp
-from sgs_slam_core.render import RenderSettings, cpu_backend, gsplat_backend, render
+from sgs_slam_core.kernels import gsplat as gsplat_backend
+from sgs_slam_core.kernels import render
+from sgs_slam_core.kernels.cpu.extensions import RENDER
+from sgs_slam_core.render import RenderSettings
 
 CPU_CASES = [(80, 60, 2_000), (160, 120, 5_000), (320, 240, 20_000)]
 GPU_CASES = [*CPU_CASES, (640, 480, 100_000), (1200, 680, 300_000)]
@@ -88,8 +91,8 @@ def main() -> None:
     if "gsplat" in backends and not (cuda and gsplat_backend.is_available()):
         print(f"gsplat skipped: {'no CUDA device' if not cuda else gsplat_backend.import_error()}")
         backends.remove("gsplat")
-    if "cpu" in backends and not cpu_backend.is_available():
-        print(f"cpu skipped: {cpu_backend.unavailable_reason()}")
+    if "cpu" in backends and not RENDER.is_available():
+        print(f"cpu skipped: {RENDER.unavailable_reason()}")
         backends.remove("cpu")
     rows = []
     for backend in backends:

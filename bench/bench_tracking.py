@@ -32,9 +32,10 @@ from sgs_slam_core.cli.run import default_preset
 from sgs_slam_core.config import SlamConfig, load_config
 from sgs_slam_core.datasets import DatasetOptions, open_dataset
 from sgs_slam_core.datasets.base import Dataset
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.kernels import build_kernels
 from sgs_slam_core.runner import run_offline
-from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.system import Slam
 from sgs_slam_core.slam.tracker import TrackResult
 from sgs_slam_core.slam.trackers import Tracker, build_tracker
@@ -186,7 +187,7 @@ def main() -> None:
     driver = args.driver or config.tracking.method
     print(f"{dataset.name}: {len(dataset)} frames at {k.width}x{k.height}, preset {preset}", file=sys.stderr)
     configs = {spec: tracker_config(config, spec, preset, args.overrides) for spec in args.trackers}
-    trackers = {spec: build_tracker(cfg.tracking, cfg.render) for spec, cfg in configs.items()}
+    trackers = {spec: build_tracker(cfg.tracking, build_kernels(cfg.render, "cpu")) for spec, cfg in configs.items()}
     side, truth = same_map_pass(dataset, config, trackers, driver if driver in trackers else args.trackers[0])
     body = (f"Pass 1: every tracker on the same {len(truth)} frames and maps (driven by `{driver}`), "
             f"same start pose:\n\n" + same_map_table(side, truth, args.trackers[0]) + "\n")  # fmt: skip

@@ -16,8 +16,9 @@ from sgs_slam_core.errors import (
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry import Intrinsics
+from sgs_slam_core.kernels import render
 from sgs_slam_core.labels import LabelClass, LabelTable
-from sgs_slam_core.render import RenderOutput, RenderSettings, render
+from sgs_slam_core.render import RenderOutput, RenderSettings
 from sgs_slam_core.semantics import SemanticCodec, SemanticSettings
 from sgs_slam_core.slam.system import Slam, StepResult
 

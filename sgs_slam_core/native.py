@@ -1,12 +1,12 @@
 """Compiled CPU kernels, built on first use with ``torch.utils.cpp_extension`` (g++ and ninja).
 
 Each :class:`NativeExtension` is one C++ source built into its own module the first time it is
-needed (30-60 s each on 2 cores), cached under ``TORCH_EXTENSIONS_DIR`` (default
+needed (about a minute each), cached under ``TORCH_EXTENSIONS_DIR`` (default
 ``~/.cache/torch_extensions``) and loaded from there by later runs. The cache name carries a
 fingerprint of the source text, the compiler flags, the torch version and the CPU (builds target
 ``-march=native``): two checkouts with different sources never rebuild each other's cache, and an
-edited source never loads a stale build. ``SGS_SLAM_NO_CPP=1`` disables every build (the callers
-fall back to their pure-PyTorch references). Importing this module builds nothing.
+edited source never loads a stale build. ``render.backend: torch`` never builds them (the
+pure-PyTorch kernels, :mod:`sgs_slam_core.kernels.reference`). Importing this module builds nothing.
 """
 
 from __future__ import annotations
@@ -58,9 +58,9 @@ class NativeExtension:
     def cache_name(self, extra_cflags: tuple[str, ...] = ()) -> str:
         """The build's name under ``TORCH_EXTENSIONS_DIR``: stem and a fingerprint of what it depends on."""
         digest = hashlib.sha1()
-        for part in (read_bytes(self.source, f"the source of {self.what}", BackendUnavailableError),
-                     " ".join((*_CFLAGS, *extra_cflags)).encode(),
-                     torch.__version__.encode(), _cpu_fingerprint().encode()):  # fmt: skip
+        source = read_bytes(self.source, f"the source of {self.what}", BackendUnavailableError)
+        flags = " ".join((*_CFLAGS, *extra_cflags)).encode()
+        for part in (source, flags, torch.__version__.encode(), _cpu_fingerprint().encode()):
             digest.update(part)
         return f"sgs_slam_{self.stem}_{digest.hexdigest()[:12]}"
 
@@ -88,9 +88,6 @@ class NativeExtension:
         if self._module is not None:
             return self._module
         if self._error is not None:
-            raise BackendUnavailableError(self._error)
-        if os.environ.get("SGS_SLAM_NO_CPP"):
-            self._error = f"{self.what} (compiled) is disabled by SGS_SLAM_NO_CPP"
             raise BackendUnavailableError(self._error)
         try:
             self._module = self._build(self.cache_name(), ())
@@ -143,8 +140,8 @@ def prepare(extensions: Iterable[NativeExtension], announce: Callable[[str], Non
     about where the extension is used).
     """
     for ext in extensions:
-        if os.environ.get("SGS_SLAM_NO_CPP"):
-            return
+        if ext.unavailable_reason():  # a build that failed is not tried again
+            continue
         if not ext.is_cached():
             announce(f"building {ext.what} (once per machine and version, ~1 min)")
         ext.is_available()

@@ -14,7 +14,7 @@ waits for the GPU.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from types import ModuleType
+from typing import Protocol
 
 import torch
 import torch.nn.functional as nn_f
@@ -22,19 +22,37 @@ from torch import Tensor
 
 from sgs_slam_core.errors import ShapeError
 from sgs_slam_core.geometry.camera import Intrinsics, vertex_map
-from sgs_slam_core.geometry.icp_native import native_terms
 from sgs_slam_core.geometry.se3 import se3_exp
 
 __all__ = [
     "IcpLevel",
     "IcpResult",
     "IcpSettings",
+    "IcpTerms",
     "align_depth",
     "align_device",
     "channel_pyramid",
     "icp_pyramid",
     "source_channels",
 ]
+
+
+class IcpTerms(Protocol):
+    """One Gauss-Newton step's normal equations and cost in one call (a compiled form of this module's step)."""
+
+    def __call__(
+        self,
+        src_to_ref: Tensor,  # [4, 4] float64
+        points: Tensor,  # [N, 3] float32 source points, z = 0 where invalid
+        values: Tensor | None,  # [N, C] float32 source channels
+        packed: Tensor,  # [H * W, 7 (+ 3C + 1)] the reference level's rows
+        intrinsics: Intrinsics,  # the reference level's camera
+        max_distance_m: float,
+        huber_m: float,
+    ) -> Tensor:  # [53] float64: normal matrix [49], truncated cost, correspondences, their sum r^2, source points
+        """The terms at ``src_to_ref``."""
+        ...
+
 
 _MIN_NORMAL_COS = 0.1  # a normal at more than ~84 degrees to its viewing ray spans a depth edge
 
@@ -352,7 +370,7 @@ def align_device(
     init_src_to_ref: Tensor,  # [4, 4] float64
     s: IcpSettings,
     channels: list[Tensor] | None = None,  # source_channels of the source frame, when the reference has channels
-    native: ModuleType | None = None,  # icp_native.EXTENSION's module: its kernel instead of PyTorch (CPU)
+    terms: IcpTerms | None = None,  # the kernels' one-call step terms (``Kernels.icp_terms``), else PyTorch's
 ) -> DeviceAlignment:
     """:func:`align_depth` without reading the result back (fixed shapes throughout, no host wait)."""
     iterations = s.steps_for(intrinsics.width)
@@ -369,24 +387,23 @@ def align_device(
         points.append(vertex_map(d, k).reshape(-1, 3))
         values = None if channels is None else channels[i]
         for _ in range(steps):
-            if native is None:
+            if terms is None:
                 pose = _gauss_newton_step(pose, points[-1], ref, s, values)
             else:
-                pose = _solve(_terms(native, pose, points[-1], values, ref, s)[:49].reshape(7, 7), pose, s)
+                pose = _solve(_terms(terms, pose, points[-1], values, ref, s)[:49].reshape(7, 7), pose, s)
     values = None if channels is None else channels[-1]
-    if native is None:
+    if terms is None:
         return _keep_better(init, pose, points[-1], values, reference[-1], s)
-    start, end = (_terms(native, p, points[-1], values, reference[-1], s)[49:] for p in (init, pose))
+    start, end = (_terms(terms, p, points[-1], values, reference[-1], s)[49:] for p in (init, pose))
     worse = end[0] > start[0]
     stats = torch.where(worse, start, end)
     return DeviceAlignment(torch.where(worse, init, pose), stats[1], stats[2], stats[3])
 
 
-def _terms(module: ModuleType, pose: Tensor, points: Tensor, values: Tensor | None, ref: IcpLevel,
-           s: IcpSettings) -> Tensor:  # fmt: skip
-    k = ref.intrinsics
-    return native_terms(module, pose, points, values, ref.packed, (k.fx, k.fy, k.cx, k.cy, k.width, k.height),
-                        s.max_distance_m, s.huber_m)  # fmt: skip
+def _terms(
+    terms: IcpTerms, pose: Tensor, points: Tensor, values: Tensor | None, ref: IcpLevel, s: IcpSettings
+) -> Tensor:  # [53] float64
+    return terms(pose, points, values, ref.packed, ref.intrinsics, s.max_distance_m, s.huber_m)
 
 
 def _keep_better(

@@ -47,7 +47,7 @@ from sgs_slam_core.frame import Frame
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelTable
-from sgs_slam_core.render.api import RenderOutput, render
+from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
 
@@ -362,7 +362,7 @@ class SlamPipeline:
             raise FrameError("no frame processed yet: nothing to render")
         w2c = torch.as_tensor(np.linalg.inv(c2w), dtype=torch.float32, device=self.slam.device)
         with torch.no_grad():
-            return render(snapshot.gaussians, snapshot.intrinsics, w2c, self.slam.config.render)
+            return self.slam.kernels.render(snapshot.gaussians, snapshot.intrinsics, w2c)
 
     def replace_map(self, gaussians: GaussianMap) -> None:
         """Track against ``gaussians`` from now on (a mapper's map from another process)."""

@@ -1,6 +1,9 @@
-"""Differentiable multi-channel Gaussian renderer (torch reference backend, optional gsplat)."""
+"""Differentiable multi-channel Gaussian renderer in PyTorch: settings, outputs, projection, tiling, compositing.
 
-from sgs_slam_core.render.api import CameraGaussians, RenderOutput, render, resolve_backend, to_camera
+``render()`` (in :mod:`sgs_slam_core.kernels`) runs it, or a compiled or CUDA kernel, by ``render.backend``.
+"""
+
+from sgs_slam_core.render.output import CameraGaussians, RenderOutput, to_camera
 from sgs_slam_core.render.settings import BackendName, RenderSettings
 
-__all__ = ["BackendName", "CameraGaussians", "RenderOutput", "RenderSettings", "render", "resolve_backend", "to_camera"]
+__all__ = ["BackendName", "CameraGaussians", "RenderOutput", "RenderSettings", "to_camera"]

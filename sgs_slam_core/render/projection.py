@@ -76,18 +76,24 @@ def project_gaussians(
     det = (a * c - b * b).clamp_min(1e-12)
     conics = torch.stack([c / det, -b / det, a / det], dim=-1)
 
-    with torch.no_grad():
-        lam_max = 0.5 * (a + c) + torch.sqrt((0.5 * (a - c)) ** 2 + b * b)
-        # Opacity-aware extent: beyond sqrt(2 ln(o / alpha_min)) sigma the alpha is below alpha_min.
-        ratio = (opacities / settings.alpha_min).clamp_min(1.0)
-        extent2 = torch.minimum(2 * torch.log(ratio), torch.full_like(ratio, settings.extent_sigma**2))
-        radii = torch.sqrt(extent2 * lam_max)
-        visible = in_front & (opacities >= settings.alpha_min) & torch.isfinite(radii)
-        radii = torch.where(visible, radii, torch.zeros_like(radii))
     return Projection(
         means2d=torch.stack([u, v], dim=-1),
         conics=conics,
         depths=z,
         opacities=opacities,
-        radii=radii,
+        radii=_radii(a, b, c, opacities, in_front, settings),
     )
+
+
+@torch.no_grad()
+def _radii(
+    a: Tensor, b: Tensor, c: Tensor, opacities: Tensor, in_front: Tensor, settings: RenderSettings
+) -> Tensor:  # [N] px, 0 = culled
+    """Footprint radii of the dilated 2D covariances [[a, b], [b, c]] (no grad)."""
+    lam_max = 0.5 * (a + c) + torch.sqrt((0.5 * (a - c)) ** 2 + b * b)
+    # Opacity-aware extent: beyond sqrt(2 ln(o / alpha_min)) sigma the alpha is below alpha_min.
+    ratio = (opacities / settings.alpha_min).clamp_min(1.0)
+    extent2 = torch.minimum(2 * torch.log(ratio), torch.full_like(ratio, settings.extent_sigma**2))
+    radii = torch.sqrt(extent2 * lam_max)
+    visible = in_front & (opacities >= settings.alpha_min) & torch.isfinite(radii)
+    return torch.where(visible, radii, torch.zeros_like(radii))

@@ -17,11 +17,14 @@ class RenderSettings:
     """Constants of the splatting model, shared by every backend.
 
     Attributes:
-        backend: ``auto`` picks gsplat on CUDA tensors when it is installed, the compiled ``cpu``
-            backend on the CPU when it builds, else ``torch`` (the pure-PyTorch reference).
+        backend: the kernels every render, loss and Gauss-Newton step runs on
+            (``kernels/factory.py``): ``torch`` is pure PyTorch on any device (the reference),
+            ``cpu`` the compiled kernels (CPU tensors), ``gsplat`` gsplat's rasteriser (CUDA);
+            ``auto`` picks gsplat on CUDA when it is installed, ``cpu`` on the CPU when it builds,
+            else ``torch``.
         tile_size: tile side in pixels for the torch backend (8 is fastest on CPU).
         cpu_tile_size: tile side of the compiled cpu backend (4, 8, 16 or 32; capped at the build's
-            largest, 32 with AVX-512 float32, else 16); 0 picks 32 (measured fastest from 80x60 to
+            largest, 32 with AVX-512 float32, else 16); 0 picks 32 (the fastest from 80x60 to
             640x480). Tiling changes the image only by float rounding (pixel offsets from tile corners).
         near_plane: Gaussians with camera-frame z at or below this (m) are culled whole.
         eps2d: isotropic dilation added to every 2D covariance (px^2), as 3DGS/gsplat.

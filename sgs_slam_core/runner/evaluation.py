@@ -18,6 +18,7 @@ from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.fileio import make_dir
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.kernels import render
 from sgs_slam_core.metrics import (
     ConfusionMatrix,
     ate,
@@ -30,7 +31,7 @@ from sgs_slam_core.metrics import (
     rpe,
     ssim,
 )
-from sgs_slam_core.render.api import RenderOutput, render
+from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.render.settings import RenderSettings
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.viz import RenderPanel, plot_trajectory, save_render_panels

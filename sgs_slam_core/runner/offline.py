@@ -27,10 +27,10 @@ from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.errors import DatasetError, EvaluationError, FrameError, OutputError, SgsSlamError
 from sgs_slam_core.frame import Frame
+from sgs_slam_core.kernels import resolve_backend
 from sgs_slam_core.mapio import save_map, write_splat_ply
 from sgs_slam_core.metrics import write_tum_trajectory
 from sgs_slam_core.profiling import stage
-from sgs_slam_core.render.api import resolve_backend
 from sgs_slam_core.runner.evaluation import EvalOptions, evaluate
 from sgs_slam_core.runner.outputs import RESULT_FILES, prepare_run_dir, remove_run, write_csv
 from sgs_slam_core.runner.progress import SlamProgress

@@ -15,8 +15,9 @@ from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.errors import ShapeError
 from sgs_slam_core.fileio import make_dir, write_image
 from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.kernels import render
 from sgs_slam_core.mapio.native import MapFile
-from sgs_slam_core.render.api import RenderOutput, render
+from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.render.settings import RenderSettings
 from sgs_slam_core.semantics import SemanticCodec, SemanticSettings
 

@@ -10,14 +10,14 @@ from torch import Tensor
 
 from sgs_slam_core.config.sections import DensifySettings
 from sgs_slam_core.frame import Frame
+from sgs_slam_core.frame_data import FrameTensors, resize_arrays
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import backproject
 from sgs_slam_core.geometry.se3 import se3_inverse
-from sgs_slam_core.render.api import RenderOutput, render
-from sgs_slam_core.render.settings import RenderSettings
+from sgs_slam_core.kernels.base import Kernels
+from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.edits import EditLocks
-from sgs_slam_core.slam.frame_data import FrameTensors, resize_arrays
 
 __all__ = ["densify_frame", "densify_mask", "gaussians_from_pixels", "over_budget", "spaced"]
 
@@ -157,7 +157,7 @@ def densify_frame(
     frame: Frame,  # the same frame on the host (a lower densification resolution resizes it)
     c2w: np.ndarray,  # [4, 4] its estimated pose
     settings: DensifySettings,
-    render_settings: RenderSettings,
+    kernels: Kernels,
     codec: SemanticCodec,
     edits: EditLocks,
     generator: torch.Generator,
@@ -169,7 +169,7 @@ def densify_frame(
         mask = data.valid
     else:
         with torch.no_grad():
-            out = render(gaussians, data.intrinsics, se3_inverse(c2w_t), render_settings, with_semantics=False)
+            out = kernels.render(gaussians, data.intrinsics, se3_inverse(c2w_t), with_semantics=False)
         mask = densify_mask(out, data, settings)
     source = data
     if settings.resolution_scale < 1.0:

@@ -10,13 +10,10 @@ import numpy as np
 import torch
 
 from sgs_slam_core.config.sections import MappingSettings
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.profiling import stage
-from sgs_slam_core.render.api import render
-from sgs_slam_core.render.settings import RenderSettings
-from sgs_slam_core.slam.direct_step import direct_available, mapping_step_grads
-from sgs_slam_core.slam.frame_data import FrameTensors
-from sgs_slam_core.slam.losses import mapping_loss
 from sgs_slam_core.slam.optimizer import GaussianOptimizer
 
 __all__ = ["MapResult", "MapStats", "WindowFrame", "map_window", "prune_mask"]
@@ -61,7 +58,7 @@ def map_window(
     gaussians: GaussianMap,
     window: list[WindowFrame],
     s: MappingSettings,
-    render_settings: RenderSettings,
+    kernels: Kernels,
     scene_radius: float,
     use_semantics: bool,
     rng: np.random.Generator,
@@ -74,12 +71,12 @@ def map_window(
 
     Gaussians of ``frozen_labels`` are left exactly as they are. ``between_iterations`` is called
     before each step (live operation); when it returns False the window ends there and the map
-    keeps the steps made so far (a newer frame is waiting). On the compiled CPU backend with an
-    isotropic map each step's gradients come from the kernels directly (``direct_step``), else autograd.
+    keeps the steps made so far (a newer frame is waiting). Where ``kernels`` have a direct mapping
+    step (compiled CPU, isotropic map) each step's gradients come from it, else from autograd.
     """
     t0 = time.perf_counter()
     opt = GaussianOptimizer(gaussians, s, frozen_labels)
-    direct = direct_available(gaussians.isotropic, gaussians.device, render_settings)
+    direct = kernels.direct_mapping(gaussians.isotropic)
     window_semantic = use_semantics and any(wf.data.semantic is not None for wf in window)
     pruned, last, done = 0, float("nan"), 0
     prune_at = set(s.prune_iterations)
@@ -88,14 +85,13 @@ def map_window(
             break
         wf = window[-1] if it < s.current_frame_steps else window[int(rng.integers(len(window)))]
         semantic = use_semantics and wf.data.semantic is not None
-        if direct:  # the same kernels without the autograd graph (slam/direct_step.py)
-            loss = mapping_step_grads(opt.params, wf.data, wf.w2c, s, render_settings, semantic, wf.weight,
-                                      window_semantic)  # fmt: skip
+        if direct:  # the same kernels without the autograd graph
+            loss = kernels.mapping_step_grads(opt.params, wf.data, wf.w2c, s, semantic, wf.weight, window_semantic)
         else:
             with stage("map.render"):
-                out = render(opt.gaussians(), wf.data.intrinsics, wf.w2c, render_settings, with_semantics=semantic)
+                out = kernels.render(opt.gaussians(), wf.data.intrinsics, wf.w2c, with_semantics=semantic)
             with stage("map.loss"):
-                loss = mapping_loss(out, wf.data, s, semantic, wf.weight)
+                loss = kernels.mapping_loss(out, wf.data, s, semantic, wf.weight)
             with stage("map.backward"):
                 loss.backward()
         with stage("map.step"):

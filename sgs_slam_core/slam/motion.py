@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from sgs_slam_core.config.sections import MotionSettings
-from sgs_slam_core.slam.frame_data import FrameTensors
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.slam.icp_init import IcpInit
 from sgs_slam_core.slam.pose import predict_constant_velocity
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sgs_slam_core.slam.frame_data import FrameTensors
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.slam.keyframes import Window
 from sgs_slam_core.slam.map_frame import MapFrameChoice
 from sgs_slam_core.slam.mapper import MapStats

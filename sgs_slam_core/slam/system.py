@@ -13,25 +13,22 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from sgs_slam_core import native
 from sgs_slam_core.config.loader import config_to_dict
 from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.editing import EditRecord, EditRequest
 from sgs_slam_core.errors import BackendUnavailableError, FrameError
 from sgs_slam_core.frame import CompactFrame, Frame
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
-from sgs_slam_core.geometry import icp_native
 from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.kernels import build_kernels
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.mapio.native import MapFile
 from sgs_slam_core.profiling import stage
-from sgs_slam_core.render import cpu_backend
-from sgs_slam_core.render.api import RenderOutput, render
+from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.semantics import SemanticCodec
-from sgs_slam_core.slam import photometric
 from sgs_slam_core.slam.densify import densify_frame, scene_radius
 from sgs_slam_core.slam.edits import EditLocks
-from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.guard import TrackingGuard
 from sgs_slam_core.slam.keyframe_store import KeyframeStore
 from sgs_slam_core.slam.keyframes import is_keyframe
@@ -80,14 +77,7 @@ class Slam:
 
         ``announce`` gets a line for each kernel that must be compiled first (about a minute each).
         """
-        extensions = []
-        if self.device.type == "cpu":
-            if self.config.render.backend in ("auto", "cpu"):
-                extensions.append(cpu_backend.EXTENSION)
-            extensions.append(photometric.EXTENSION)
-            if self.config.tracking.method == "gauss_newton" and self.config.render.backend in ("auto", "cpu"):
-                extensions.append(icp_native.EXTENSION)
-        native.prepare(extensions, announce)
+        self.kernels.prepare(announce)
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
@@ -96,7 +86,8 @@ class Slam:
         self.initial_c2w = np.eye(4) if self.given_c2w is None else self.given_c2w.copy()
         self.map_frame = MapFramePolicy(c.map_frame)
         self.motion = MotionModel(c.motion, self.initial_c2w)
-        self.tracker = build_tracker(c.tracking, c.render)
+        self.kernels = build_kernels(c.render, self.device)  # render, losses and steps for this device, chosen once
+        self.tracker = build_tracker(c.tracking, self.kernels)
         self.guard = TrackingGuard(c.guard)
         self.keyframes = KeyframeStore(c.keyframes)  # capped: the best-covered view leaves
         self.edits = EditLocks()
@@ -195,7 +186,7 @@ class Slam:
         use_sem = frame.labels is not None
         with stage("densify"):
             gaussians, added = densify_frame(self.gaussians, data, frame, tracked.c2w, self.config.densify,
-                                             self.config.render, self.codec, self.edits, self.torch_rng)  # fmt: skip
+                                             self.kernels, self.codec, self.edits, self.torch_rng)  # fmt: skip
         timings["densify"] = time.perf_counter() - t0
         stats, window = None, None
         if self._mapping_due(tracked.index):
@@ -205,7 +196,7 @@ class Slam:
                 window = choose_window(self.keyframes, data, tracked.c2w, frame.labels, self.config.keyframes, self.rng)
             timings["keyframe_selection"] = time.perf_counter() - t_sel
             frames = upload_window(self.keyframes, window, data, tracked.c2w, self.codec, self.edits)
-            result = map_window(gaussians, frames, self.config.mapping, self.config.render, self.scene_radius, use_sem,
+            result = map_window(gaussians, frames, self.config.mapping, self.kernels, self.scene_radius, use_sem,
                                 self.rng, self.edits.locked_labels, between_iterations)  # fmt: skip
             gaussians, stats = result.gaussians, result.stats
         if self.config.mapping.refresh_labels and use_sem:
@@ -380,7 +371,7 @@ class Slam:
         if k is None:
             raise FrameError("no frame processed yet: give the intrinsics to render with")
         w2c = torch.as_tensor(np.linalg.inv(c2w), dtype=torch.float32, device=self.device)
-        return render(self.gaussians, k, w2c, self.config.render, with_semantics=with_semantics)
+        return self.kernels.render(self.gaussians, k, w2c, with_semantics=with_semantics)
 
     def keyframe_poses(self) -> list[tuple[int, np.ndarray]]:
         """(frame index, c2w) of every keyframe, those the store has let go included."""

@@ -11,13 +11,12 @@ import torch
 from torch import Tensor
 
 from sgs_slam_core.config.sections import TrackingSettings
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.kernels.base import Kernels
+from sgs_slam_core.kernels.losses import TrackingLoss
 from sgs_slam_core.profiling import stage
-from sgs_slam_core.render.api import render
-from sgs_slam_core.render.settings import RenderSettings
 from sgs_slam_core.slam.adam import FusedAdam
-from sgs_slam_core.slam.frame_data import FrameTensors
-from sgs_slam_core.slam.losses import TrackingLoss, tracking_loss
 from sgs_slam_core.slam.pose import PoseParameters
 
 __all__ = ["TrackResult", "track"]
@@ -43,7 +42,7 @@ def track(
     frame: FrameTensors,
     init_w2c: np.ndarray,
     s: TrackingSettings,
-    render_settings: RenderSettings,
+    kernels: Kernels,
     use_semantics: bool,
     newer_frame_waiting: Callable[[], bool] | None = None,
 ) -> TrackResult:
@@ -66,9 +65,9 @@ def track(
     converged, it = False, 0
     for it in range(1, s.adam.iterations + 1):
         with stage("track.render"):
-            out = render(fixed, frame.intrinsics, pose.w2c(), render_settings, with_semantics=use_semantics)
+            out = kernels.render(fixed, frame.intrinsics, pose.w2c(), with_semantics=use_semantics)
         with stage("track.loss"):
-            loss = tracking_loss(out, frame, s, use_semantics)
+            loss = kernels.tracking_loss(out, frame, s, use_semantics)
             best.update(loss, pose.xi(), s.adam.stop_rel_improvement)
         if it % check_every == 0 or it == s.adam.iterations:
             pixels, stale = (int(v) for v in torch.stack([loss.pixels, best.stale]).tolist())  # the one host read
@@ -83,12 +82,7 @@ def track(
             loss.total.backward()
         with stage("track.step"):
             adam.step()
-    value, pixels, residual = (float(v) for v in torch.stack([best.loss, best.pixels.float(), best.residual]).tolist())
-    if pixels == 0:  # no pixel was ever explained: keep the initial pose
-        return TrackResult(init_w2c.copy(), it, converged, float("inf"), 0.0, float("inf"), 0.0,
-                           time.perf_counter() - t0)  # fmt: skip
-    return TrackResult(pose.numpy(best.xi), it, converged, value, value / pixels, residual,
-                       pixels / frame.depth.numel(), time.perf_counter() - t0)  # fmt: skip
+    return best.result(pose, init_w2c, it, converged, frame.depth.numel(), t0)
 
 
 @dataclass
@@ -117,3 +111,36 @@ class _Best:
         self.xi = torch.where(better, xi, self.xi)
         self.pixels = torch.where(better, loss.pixels, self.pixels)
         self.residual = torch.where(better, loss.depth_residual_m, self.residual)
+
+    def result(
+        self, pose: PoseParameters, init_w2c: np.ndarray, it: int, converged: bool, num_pixels: int, t0: float
+    ) -> TrackResult:
+        """The best pose and its loss, read back in one host read; the initial pose if nothing was explained.
+
+        ``t0``: when tracking started (``time.perf_counter()``).
+        """
+        value, pixels, residual = (
+            float(v) for v in torch.stack([self.loss, self.pixels.float(), self.residual]).tolist()
+        )
+        elapsed = time.perf_counter() - t0
+        if pixels == 0:  # no pixel was ever explained: keep the initial pose
+            return TrackResult(
+                w2c=init_w2c.copy(),
+                iterations=it,
+                converged=converged,
+                loss=float("inf"),
+                loss_per_pixel=0.0,
+                depth_residual_m=float("inf"),
+                valid_fraction=0.0,
+                time_s=elapsed,
+            )
+        return TrackResult(
+            w2c=pose.numpy(self.xi),
+            iterations=it,
+            converged=converged,
+            loss=value,
+            loss_per_pixel=value / pixels,
+            depth_residual_m=residual,
+            valid_fraction=pixels / num_pixels,
+            time_s=elapsed,
+        )

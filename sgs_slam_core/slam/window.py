@@ -6,10 +6,10 @@ import numpy as np
 import torch
 
 from sgs_slam_core.config.sections import KeyframeSettings
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.edits import EditLocks
-from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.keyframe_store import KeyframeStore
 from sgs_slam_core.slam.keyframes import Window, select_window
 from sgs_slam_core.slam.mapper import WindowFrame

@@ -1,11 +1,10 @@
 """The compiled extensions: cache names (one per source text, flags, torch and CPU), and that they build."""
 
-import os
 import shutil
 
 import pytest
 
-from sgs_slam_core.native import NativeExtension
+from sgs_slam_core.native import NativeExtension, prepare
 
 
 def test_cache_name_follows_the_source_and_the_flags(tmp_path):
@@ -19,12 +18,13 @@ def test_cache_name_follows_the_source_and_the_flags(tmp_path):
     assert ext.cache_name() != first
 
 
-def test_a_disabled_build_explains_itself(tmp_path, monkeypatch):
-    monkeypatch.setenv("SGS_SLAM_NO_CPP", "1")
-    src = tmp_path / "k.cpp"
-    src.write_text("// never built\n")
-    ext = NativeExtension("k", src, "a kernel")
-    assert not ext.is_available() and "SGS_SLAM_NO_CPP" in ext.unavailable_reason()
+def test_a_missing_source_explains_itself(tmp_path):
+    ext = NativeExtension("k", tmp_path / "absent.cpp", "a kernel")
+    assert not ext.is_cached()
+    assert not ext.is_available() and "a kernel" in ext.unavailable_reason()
+    prepared = []
+    prepare([ext], prepared.append)  # a failed build is not announced or tried again
+    assert prepared == []
 
 
 def test_a_cache_that_cannot_be_written_falls_back_with_a_reason(tmp_path, monkeypatch):
@@ -32,7 +32,6 @@ def test_a_cache_that_cannot_be_written_falls_back_with_a_reason(tmp_path, monke
     blocker = tmp_path / "not_a_folder"
     blocker.write_text("")
     monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(blocker / "ext"))
-    monkeypatch.delenv("SGS_SLAM_NO_CPP", raising=False)
     src = tmp_path / "k.cpp"
     src.write_text("// cannot be built here\n")
     ext = NativeExtension("k", src, "a kernel")
@@ -42,11 +41,10 @@ def test_a_cache_that_cannot_be_written_falls_back_with_a_reason(tmp_path, monke
     assert "TORCH_EXTENSIONS_DIR" in ext.unavailable_reason()
 
 
-@pytest.mark.skipif(shutil.which("g++") is None or bool(os.environ.get("SGS_SLAM_NO_CPP")), reason="no C++ compiler")
+@pytest.mark.skipif(shutil.which("g++") is None, reason="no C++ compiler")
 def test_the_kernels_build_where_there_is_a_compiler():
     """The compiled tests skip when a build fails (a laptop without g++); here a failed build is a failure."""
-    from sgs_slam_core.render import cpu_backend
-    from sgs_slam_core.slam import photometric
+    from sgs_slam_core.kernels.cpu.extensions import EXTENSIONS
 
-    for ext in (cpu_backend.EXTENSION, photometric.EXTENSION):
+    for ext in EXTENSIONS:
         assert ext.is_available(), ext.unavailable_reason()

@@ -16,4 +16,4 @@ def test_every_cli_path_and_the_nodes_make_tensors_on_the_callers_device(tmp_pat
     out = subprocess.run([sys.executable, "-m", "test.devices.meta_driver", str(tmp_path)], cwd=REPO, env=env,
                          capture_output=True, text=True, timeout=900, check=False)  # fmt: skip
     assert out.returncode == 0, out.stdout[-6000:] + out.stderr[-4000:]
-    assert out.stdout.count("ok: ") == 15, out.stdout
+    assert out.stdout.count("ok: ") == 16, out.stdout

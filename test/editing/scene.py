@@ -9,8 +9,9 @@ import torch
 
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.kernels import render
 from sgs_slam_core.labels import LabelTable
-from sgs_slam_core.render.api import RenderOutput, render
+from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.semantics import SemanticCodec, SemanticSettings
 
 WALL, BOX, CHAIR = 1, 5, 6  # NYU40: wall, chair... ids only matter through the table's colours

@@ -7,7 +7,8 @@ import torch
 
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry import Intrinsics
-from sgs_slam_core.render import RenderSettings, render
+from sgs_slam_core.kernels import render
+from sgs_slam_core.render import RenderSettings
 
 K = Intrinsics(100.0, 100.0, 20.0, 15.0, 41, 31)
 SETTINGS = RenderSettings(backend="torch")

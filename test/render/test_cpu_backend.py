@@ -5,14 +5,16 @@ import torch
 
 from sgs_slam_core.errors import BackendUnavailableError
 from sgs_slam_core.geometry import se3_exp
-from sgs_slam_core.render import RenderSettings, cpu_backend, render
-from sgs_slam_core.render.api import resolve_backend
+from sgs_slam_core.kernels import render
+from sgs_slam_core.kernels.cpu.extensions import RENDER
+from sgs_slam_core.kernels.factory import resolve_backend
+from sgs_slam_core.render import RenderSettings
 
 from .scenes import random_scene
 from .test_gradients import check
 
 pytestmark = pytest.mark.skipif(
-    not cpu_backend.is_available(), reason=f"compiled backend unavailable: {cpu_backend.unavailable_reason()}"
+    not RENDER.is_available(), reason=f"compiled backend unavailable: {RENDER.unavailable_reason()}"
 )
 
 FIELDS = ("means", "log_scales", "logit_opacities", "colors", "semantics")
@@ -113,7 +115,7 @@ def test_the_simd_preparation_is_the_scalar_one_bit_for_bit():
     logit = gm.logit_opacities.clone()
     logit[30:40] = -6.0  # opacity 0.0025, below alpha_min: culled
     s = RenderSettings()
-    ext = cpu_backend.extension()
+    ext = RENDER.module()
     pose = torch.tensor([[0.0, -1, 0, 0.1], [1, 0, 0, -0.2], [0, 0, 1, 0.3], [0, 0, 0, 1]])
     params = (gm.means, gm.log_scales, logit, gm.colors, gm.semantics)
     cam = (k.fx, k.fy, k.cx, k.cy, k.width, k.height, s.near_plane, s.eps2d, s.alpha_min, s.extent_sigma)
@@ -163,7 +165,7 @@ def test_binning_is_the_same_for_any_number_of_parts():
     radii[::7] = 0  # culled
     depths = torch.rand(n, generator=g) * 5 + 0.1
     depths[::11] = depths[3]  # ties keep index order
-    ext = cpu_backend.extension()
+    ext = RENDER.module()
     one = ext.bin_gaussians(means2d, radii, depths, 160, 120, 16, 1)
     assert one[0].numel() > n
     for parts in (2, 3, 7):
@@ -173,11 +175,10 @@ def test_binning_is_the_same_for_any_number_of_parts():
 
 def test_auto_picks_the_compiled_backend_and_falls_back_with_a_reason(monkeypatch):
     assert resolve_backend("auto", torch.device("cpu")) == "cpu"
-    monkeypatch.setattr(cpu_backend.EXTENSION, "_module", None)
-    monkeypatch.setattr(cpu_backend.EXTENSION, "_error", None)
-    monkeypatch.setenv("SGS_SLAM_NO_CPP", "1")
+    monkeypatch.setattr(RENDER, "_module", None)
+    monkeypatch.setattr(RENDER, "_error", "no compiler in this test")
     assert resolve_backend("auto", torch.device("cpu")) == "torch"
-    with pytest.raises(BackendUnavailableError, match="SGS_SLAM_NO_CPP"):
+    with pytest.raises(BackendUnavailableError, match="no compiler in this test"):
         resolve_backend("cpu", torch.device("cpu"))
 
 
@@ -223,9 +224,9 @@ def test_without_semantics_the_semantic_group_is_empty():
 
 def test_the_build_without_avx512_matches_the_reference(monkeypatch):
     """The paths of CPUs without AVX-512 (8-lane packs, 16 px tiles, portable exp and sums)."""
-    ext = cpu_backend.build_variant("noavx512", ("-mno-avx512f",))
+    ext = RENDER.variant("noavx512", ("-mno-avx512f",))
     assert ext.max_tile(False) == 16 and ext.max_tile(True) == 16
-    monkeypatch.setattr(cpu_backend.EXTENSION, "_module", ext)
+    monkeypatch.setattr(RENDER, "_module", ext)
     assert_parity(1500, 97, 61, seed=32, scene={"behind": 100})
 
 

@@ -4,7 +4,8 @@ import pytest
 import torch
 
 from sgs_slam_core.geometry import se3_exp
-from sgs_slam_core.render import RenderSettings, render
+from sgs_slam_core.kernels import render
+from sgs_slam_core.render import RenderSettings
 
 from .scenes import random_scene
 

@@ -9,7 +9,9 @@ import pytest
 import torch
 
 from sgs_slam_core.geometry import se3_exp
-from sgs_slam_core.render import RenderSettings, gsplat_backend, render
+from sgs_slam_core.kernels import gsplat as gsplat_backend
+from sgs_slam_core.kernels import render
+from sgs_slam_core.render import RenderSettings
 
 from .scenes import random_scene
 

@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from sgs_slam_core.render import RenderSettings, to_camera
-from sgs_slam_core.render.api import camera_covariances
 from sgs_slam_core.render.composite import composite, composite_autograd
 from sgs_slam_core.render.dense import composite_dense
+from sgs_slam_core.render.output import camera_covariances
 from sgs_slam_core.render.projection import project_gaussians
 from sgs_slam_core.render.tiling import plan_tiles
 

@@ -11,11 +11,11 @@ from sgs_slam_core.config.sections import MapFrameSettings, MotionSettings
 from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.errors import ConfigError
 from sgs_slam_core.frame import Frame
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.geometry import Intrinsics, se3_exp
 from sgs_slam_core.geometry.gravity import OPTICAL_IN_BODY, MapAlignment, initial_map_pose, pose_from_xyz_rpy
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.semantics import SemanticCodec, SemanticSettings
-from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.map_frame import MapFramePolicy
 from sgs_slam_core.slam.motion import MotionModel
 from sgs_slam_core.slam.system import Slam

@@ -7,18 +7,18 @@ import pytest
 import torch
 
 from sgs_slam_core.config.sections import MappingSettings
-from sgs_slam_core.render import RenderSettings, cpu_backend, render
+from sgs_slam_core.frame_data import FrameTensors
+from sgs_slam_core.kernels import build_kernels, render
+from sgs_slam_core.kernels.cpu.extensions import EXTENSIONS
+from sgs_slam_core.kernels.cpu.kernels import CpuKernels
+from sgs_slam_core.render import RenderSettings
 from sgs_slam_core.slam import mapper
-from sgs_slam_core.slam.direct_step import direct_available, mapping_step_grads
-from sgs_slam_core.slam.frame_data import FrameTensors
-from sgs_slam_core.slam.fused_losses import fused_available
-from sgs_slam_core.slam.losses import mapping_loss
 from sgs_slam_core.slam.optimizer import GaussianOptimizer
 
 from ..render.scenes import random_scene
 
 pytestmark = pytest.mark.skipif(
-    not (cpu_backend.is_available() and fused_available(torch.device("cpu"))), reason="compiled kernels unavailable"
+    not all(ext.is_available() for ext in EXTENSIONS), reason="compiled kernels unavailable"
 )
 
 CPU = RenderSettings(backend="cpu")
@@ -44,12 +44,13 @@ def _frame(seed: int, ignore: bool) -> tuple:
 def test_the_direct_gradients_are_autograds(semantic: bool, ignore: bool) -> None:
     gm, data = _frame(3, ignore)
     s, w2c, weight = MappingSettings(), torch.eye(4), 0.8
+    kernels = build_kernels(CPU, "cpu")
     ref = GaussianOptimizer(gm, s)
-    out = render(ref.gaussians(), data.intrinsics, w2c, CPU, with_semantics=semantic)
-    loss = mapping_loss(out, data, s, semantic, weight)
+    out = kernels.render(ref.gaussians(), data.intrinsics, w2c, with_semantics=semantic)
+    loss = kernels.mapping_loss(out, data, s, semantic, weight)
     loss.backward()
     direct = GaussianOptimizer(gm, s)
-    value = mapping_step_grads(direct.params, data, w2c, s, CPU, semantic, weight)
+    value = kernels.mapping_step_grads(direct.params, data, w2c, s, semantic, weight)
     assert torch.equal(value, loss.detach())
     for name, p in ref.params.items():
         assert torch.equal(direct.params[name].grad, p.grad), name
@@ -62,14 +63,15 @@ def test_map_window_takes_the_direct_path_with_the_same_result(monkeypatch, use_
     gm, data = _frame(4, False)
     window = [mapper.WindowFrame(data, torch.eye(4), 1.0), mapper.WindowFrame(data, torch.eye(4), 0.9)]
     s = MappingSettings(iterations=8, prune_iterations=(3,))
-    assert direct_available(gm.isotropic, gm.device, CPU)
+    kernels = build_kernels(CPU, "cpu")
+    assert kernels.direct_mapping(gm.isotropic)
     calls = []
-    real = mapper.mapping_step_grads
-    monkeypatch.setattr(mapper, "mapping_step_grads", lambda *a, **kw: calls.append(1) or real(*a, **kw))
-    fast = mapper.map_window(gm, window, s, CPU, 1.0, use_semantics, np.random.default_rng(0))
+    real = CpuKernels.mapping_step_grads
+    monkeypatch.setattr(CpuKernels, "mapping_step_grads", lambda *a, **kw: calls.append(1) or real(*a, **kw))
+    fast = mapper.map_window(gm, window, s, kernels, 1.0, use_semantics, np.random.default_rng(0))
     assert len(calls) == 8
-    monkeypatch.setattr(mapper, "direct_available", lambda *a: False)
-    slow = mapper.map_window(gm, window, s, CPU, 1.0, use_semantics, np.random.default_rng(0))
+    monkeypatch.setattr(CpuKernels, "direct_mapping", lambda *a: False)
+    slow = mapper.map_window(gm, window, s, kernels, 1.0, use_semantics, np.random.default_rng(0))
     assert len(calls) == 8 and fast.stats.pruned == slow.stats.pruned
     for name in ("means", "log_scales", "logit_opacities", "colors", "semantics", "labels"):
         assert torch.equal(getattr(fast.gaussians, name), getattr(slow.gaussians, name)), name

@@ -8,14 +8,17 @@ import pytest
 import torch
 
 from sgs_slam_core.config.sections import MappingSettings, TrackingSettings
-from sgs_slam_core.render.api import RenderOutput
-from sgs_slam_core.slam.frame_data import FrameTensors
-from sgs_slam_core.slam.losses import mapping_loss, mapping_loss_reference, tracking_loss, tracking_loss_reference
-from sgs_slam_core.slam.photometric import EXTENSION
+from sgs_slam_core.frame_data import FrameTensors
+from sgs_slam_core.kernels.cpu.extensions import PHOTOMETRIC
+from sgs_slam_core.kernels.cpu.losses import mapping_loss, tracking_loss
+from sgs_slam_core.kernels.losses import mapping_loss_reference, tracking_loss_reference
+from sgs_slam_core.render.output import RenderOutput
 
 from ..render.scenes import random_scene
 
-fused_only = pytest.mark.skipif(not EXTENSION.is_available(), reason=f"no compiler: {EXTENSION.unavailable_reason()}")
+fused_only = pytest.mark.skipif(
+    not PHOTOMETRIC.is_available(), reason=f"no compiler: {PHOTOMETRIC.unavailable_reason()}"
+)
 
 
 def _case(seed: int, ignore: bool) -> tuple[RenderOutput, FrameTensors]:

@@ -10,19 +10,21 @@ from sgs_slam_core.config import load_config
 from sgs_slam_core.config.sections import DensifySettings, GaussNewtonSettings, TrackingSettings
 from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.errors import ConfigError
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry import se3_exp
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.icp import _associate, _channel_rows, channel_pyramid, icp_pyramid
-from sgs_slam_core.render import RenderSettings, render
+from sgs_slam_core.kernels import build_kernels, render
+from sgs_slam_core.render import RenderSettings
 from sgs_slam_core.slam.densify import gaussians_from_pixels
-from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.system import Slam
 from sgs_slam_core.slam.trackers import AdamTracker, GaussNewtonTracker, build_tracker
 
 from ..conftest import FAST_SLAM
 
 SETTINGS = RenderSettings(backend="torch")
+TORCH = build_kernels(SETTINGS, "cpu")
 
 
 def target_frame(width: int = 64, height: int = 48) -> tuple[GaussianMap, FrameTensors]:
@@ -72,7 +74,7 @@ def test_the_tracker_recovers_a_perturbed_pose_against_the_rendered_map():
     start = se3_exp(torch.tensor([0.03, -0.02, 0.02, 0.02, -0.03, 0.01], dtype=torch.float64)).numpy()
     s = TrackingSettings(method="gauss_newton", sil_threshold=0.99,
                          gauss_newton=GaussNewtonSettings(iterations=(8,), renders=2, min_width=8))  # fmt: skip
-    result = build_tracker(s, SETTINGS).track(gm, frame, start, True)
+    result = build_tracker(s, TORCH).track(gm, frame, start, True)
     before = np.linalg.norm(start[:3, 3])
     after = np.linalg.norm(result.w2c[:3, 3])
     assert after < 0.1 * before, (before, after)
@@ -91,7 +93,7 @@ def test_every_term_alone_and_the_adam_polish_move_towards_the_truth():
     }
     for name, gn in variants.items():
         s = TrackingSettings(method="gauss_newton", sil_threshold=0.99, gauss_newton=gn)
-        result = GaussNewtonTracker(s, SETTINGS).track(gm, frame, start, True)
+        result = GaussNewtonTracker(s, TORCH).track(gm, frame, start, True)
         assert np.linalg.norm(result.w2c[:3, 3]) < 0.3 * np.linalg.norm(start[:3, 3]), name
 
 
@@ -99,14 +101,14 @@ def test_an_empty_map_keeps_the_prediction():
     gm, frame = target_frame(width=64, height=48)
     start = se3_exp(torch.tensor([0.0, 0.0, -10.0, 0.0, 0.0, 0.0], dtype=torch.float64)).numpy()  # map behind
     s = TrackingSettings(method="gauss_newton", sil_threshold=0.99, gauss_newton=GaussNewtonSettings(min_width=8))
-    result = GaussNewtonTracker(s, SETTINGS).track(gm, frame, start, False)
+    result = GaussNewtonTracker(s, TORCH).track(gm, frame, start, False)
     assert np.array_equal(result.w2c, start) and result.loss == float("inf") and result.valid_fraction == 0.0
 
 
 def test_the_method_is_a_config_value_with_checked_settings():
-    assert isinstance(build_tracker(TrackingSettings(), SETTINGS), AdamTracker)
+    assert isinstance(build_tracker(TrackingSettings(), TORCH), AdamTracker)
     cfg = load_config("tum", overrides=["tracking.method=gauss_newton", "tracking.gauss_newton.renders=2"])
-    assert isinstance(build_tracker(cfg.tracking, cfg.render), GaussNewtonTracker)
+    assert isinstance(build_tracker(cfg.tracking, build_kernels(cfg.render, "cpu")), GaussNewtonTracker)
     for bad in ("tracking.method=lbfgs", "tracking.gauss_newton.renders=0", "tracking.gauss_newton.iterations=[]",
                 "tracking.gauss_newton.color_scale_m=-1", "tracking.gauss_newton.color_channels=hsv",
                 "tracking.gauss_newton.adam_lr_scale=0"):  # fmt: skip
@@ -130,10 +132,11 @@ def test_slam_with_the_gauss_newton_tracker_follows_the_tiny_scene(tiny_scene):
 def test_the_compiled_step_matches_the_pytorch_reference():
     """Normal equations and truncated cost of cpu/gauss_newton.cpp against geometry/icp.py's tensors."""
     from sgs_slam_core.geometry import icp
-    from sgs_slam_core.geometry.icp_native import EXTENSION
+    from sgs_slam_core.kernels.cpu.extensions import GAUSS_NEWTON
+    from sgs_slam_core.kernels.cpu.gauss_newton import icp_terms
 
-    if not EXTENSION.is_available():
-        pytest.skip(EXTENSION.unavailable_reason())
+    if not GAUSS_NEWTON.is_available():
+        pytest.skip(GAUSS_NEWTON.unavailable_reason())
     gm, frame = target_frame()
     k = frame.intrinsics
     with torch.no_grad():
@@ -149,7 +152,7 @@ def test_the_compiled_step_matches_the_pytorch_reference():
     pose = se3_exp(torch.tensor([0.005, 0.0, 0.0, 0.0, 0.01, 0.0], dtype=torch.float64))
     depth_only = icp.IcpLevel(ref.intrinsics, ref.packed[:, :7])
     for level, vals in ((depth_only, None), (ref, values)):
-        terms = icp._terms(EXTENSION.module(), pose, points, vals, level, s)
+        terms = icp._terms(icp_terms, pose, points, vals, level, s)
         normal = icp._normal_matrix(pose, points, level, s, vals)
         assert torch.allclose(terms[:49].reshape(7, 7), normal, rtol=1e-4, atol=1e-6 * float(normal.abs().max()))
         a = icp._associate(pose, points, level, s.max_distance_m)

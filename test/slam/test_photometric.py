@@ -3,9 +3,15 @@
 import pytest
 import torch
 
-from sgs_slam_core.slam.photometric import EXTENSION, photometric_loss, resolve_photometric_backend
+from sgs_slam_core.kernels import build_kernels
+from sgs_slam_core.kernels.cpu import losses as cpu_losses
+from sgs_slam_core.kernels.cpu.extensions import PHOTOMETRIC
+from sgs_slam_core.kernels.photometric import photometric_loss
+from sgs_slam_core.render import RenderSettings
 
-fused_only = pytest.mark.skipif(not EXTENSION.is_available(), reason=f"no compiler: {EXTENSION.unavailable_reason()}")
+fused_only = pytest.mark.skipif(
+    not PHOTOMETRIC.is_available(), reason=f"no compiler: {PHOTOMETRIC.unavailable_reason()}"
+)
 
 
 def _pair(h, w, c, dtype, seed):
@@ -16,9 +22,16 @@ def _pair(h, w, c, dtype, seed):
     return pred, target, ignore
 
 
+def _photometric(x, target, ignore, weight, backend):
+    """``reference``: PyTorch with the banded blur, ``conv``: with convolutions, ``fused``: the compiled kernel."""
+    if backend == "fused":
+        return cpu_losses.photometric_loss(x, target, ignore, weight)
+    return photometric_loss(x, target, ignore, weight, "conv" if backend == "conv" else "band")
+
+
 def _loss_and_grad(pred, target, ignore, weight, backend):
     x = pred.clone().requires_grad_(True)
-    loss = photometric_loss(x, target, ignore, weight, backend)
+    loss = _photometric(x, target, ignore, weight, backend)
     loss.backward()
     return loss.detach(), x.grad
 
@@ -48,7 +61,7 @@ def test_float32_within_rounding_of_the_reference():
 def test_fused_gradient_against_finite_differences():
     pred, target, _ = _pair(9, 13, 2, torch.float64, seed=5)
     x = pred.clone().requires_grad_(True)
-    assert torch.autograd.gradcheck(lambda v: photometric_loss(v, target, None, 0.3, "fused"), (x,), eps=1e-6)
+    assert torch.autograd.gradcheck(lambda v: _photometric(v, target, None, 0.3, "fused"), (x,), eps=1e-6)
 
 
 @fused_only
@@ -75,10 +88,8 @@ def test_fused_result_does_not_depend_on_the_thread_count():
     assert torch.equal(l1, l2) and torch.equal(g1, g2)
 
 
-def test_auto_picks_per_device(monkeypatch):
-    assert resolve_photometric_backend("auto", torch.device("cuda")) == "conv"
-    assert resolve_photometric_backend("reference", torch.device("cpu")) == "reference"
-    monkeypatch.setattr(EXTENSION, "_module", None)
-    monkeypatch.setattr(EXTENSION, "_error", None)
-    monkeypatch.setenv("SGS_SLAM_NO_CPP", "1")
-    assert resolve_photometric_backend("auto", torch.device("cpu")) == "reference"
+def test_the_reference_kernels_pick_the_ssim_window_per_device():
+    reference = RenderSettings(backend="torch")
+    assert build_kernels(reference, torch.device("cpu")).ssim_blur == "band"
+    assert build_kernels(reference, torch.device("meta")).ssim_blur == "conv"
+    assert build_kernels(RenderSettings(backend="auto"), torch.device("meta")).name == "torch"

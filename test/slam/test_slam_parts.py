@@ -9,11 +9,12 @@ import torch
 from sgs_slam_core.config import load_config
 from sgs_slam_core.config.sections import GuardSettings, KeyframeSettings, MappingSettings
 from sgs_slam_core.frame import CompactFrame, Frame
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.geometry import Intrinsics, se3_exp
+from sgs_slam_core.kernels import build_kernels
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.render import RenderSettings
 from sgs_slam_core.semantics import SemanticCodec
-from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.guard import TrackingGuard
 from sgs_slam_core.slam.keyframes import is_keyframe, label_miou, overlap_scores, select_window
 from sgs_slam_core.slam.optimizer import GaussianOptimizer
@@ -156,14 +157,16 @@ def test_the_first_mapping_steps_render_the_newest_window_frame(monkeypatch):
     gm, k = random_scene(300, 32, 24, seed=1)
     seen: list[float] = []
 
-    def recording_render(gaussians, intrinsics, w2c, settings, with_semantics):
-        seen.append(float(w2c[0, 3]))  # the frame's x offset identifies it
-        return real_render(gaussians, intrinsics, w2c, settings, with_semantics=with_semantics)
+    kernels = build_kernels(RenderSettings(backend="torch"), "cpu")
+    real_render = kernels.render
 
-    real_render = mapper.render
-    monkeypatch.setattr(mapper, "render", recording_render)
+    def recording_render(gaussians, intrinsics, w2c, with_semantics):
+        seen.append(float(w2c[0, 3]))  # the frame's x offset identifies it
+        return real_render(gaussians, intrinsics, w2c, with_semantics=with_semantics)
+
     with torch.no_grad():
-        out = real_render(gm, k, torch.eye(4), RenderSettings(backend="torch"))
+        out = real_render(gm, k, torch.eye(4))
+    monkeypatch.setattr(kernels, "render", recording_render)
     data = FrameTensors(0, k, out.color, out.depth, None, None)
     window = []
     for x in (0.0, 0.25, 0.5):  # the last one is the newest frame (exact in float32)
@@ -171,6 +174,6 @@ def test_the_first_mapping_steps_render_the_newest_window_frame(monkeypatch):
         w2c[0, 3] = x
         window.append(mapper.WindowFrame(data, w2c, 1.0))
     s = MappingSettings(iterations=12, current_frame_steps=5, prune_iterations=())
-    mapper.map_window(gm, window, s, RenderSettings(backend="torch"), 1.0, False, np.random.default_rng(0))
+    mapper.map_window(gm, window, s, kernels, 1.0, False, np.random.default_rng(0))
     assert seen[:5] == [0.5] * 5 and len(seen) == 12
     assert {0.0, 0.25} <= set(seen[5:])  # then uniformly over the window

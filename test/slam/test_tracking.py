@@ -5,17 +5,18 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 import torch
 
 from sgs_slam_core.config import load_config
 from sgs_slam_core.config.sections import AdamTrackerSettings, MappingSettings, TrackingSettings
 from sgs_slam_core.datasets import open_dataset
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.geometry import se3_exp
-from sgs_slam_core.render import RenderSettings, render
-from sgs_slam_core.render.api import RenderOutput
-from sgs_slam_core.slam.frame_data import FrameTensors
+from sgs_slam_core.kernels import build_kernels, render
+from sgs_slam_core.render import RenderSettings
+from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.slam.icp_init import IcpInit
-from sgs_slam_core.slam.losses import mapping_loss, tracking_loss
 from sgs_slam_core.slam.system import Slam
 from sgs_slam_core.slam.tracker import track
 
@@ -23,6 +24,7 @@ from ..conftest import FAST_SLAM
 from ..render.scenes import random_scene
 
 SETTINGS = RenderSettings(backend="torch")
+TORCH = build_kernels(SETTINGS, "cpu")
 
 
 def target_frame(n: int = 1500, width: int = 48, height: int = 36) -> tuple[object, FrameTensors]:
@@ -35,7 +37,8 @@ def target_frame(n: int = 1500, width: int = 48, height: int = 36) -> tuple[obje
     return gm, frame
 
 
-def test_tracking_loss_matches_indexed_sums_and_gives_no_gradient_outside_the_mask():
+@pytest.mark.parametrize("backend", ["torch", "auto"])  # the reference, and the compiled kernels where they build
+def test_tracking_loss_matches_indexed_sums_and_gives_no_gradient_outside_the_mask(backend):
     gm, frame = target_frame()
     out = render(gm, frame.intrinsics, se3_exp(torch.tensor([0.01, 0, 0, 0, 0.01, 0])), SETTINGS)
     depth = out.depth.detach().clone()
@@ -43,7 +46,7 @@ def test_tracking_loss_matches_indexed_sums_and_gives_no_gradient_outside_the_ma
     depth.requires_grad_(True)
     out = dataclasses.replace(out, depth=depth)
     s = TrackingSettings(sil_threshold=0.5)
-    loss = tracking_loss(out, frame, s, use_semantics=True)
+    loss = build_kernels(RenderSettings(backend=backend), "cpu").tracking_loss(out, frame, s, use_semantics=True)
     mask = frame.valid & (out.silhouette.detach() > 0.5) & torch.isfinite(depth.detach())
     expected = ((depth - frame.depth).abs()[mask].sum() + 0.5 * (out.color - frame.rgb).abs()[mask].sum()
                 + 0.05 * (out.semantic - frame.semantic).abs()[mask].sum())  # fmt: skip
@@ -54,13 +57,16 @@ def test_tracking_loss_matches_indexed_sums_and_gives_no_gradient_outside_the_ma
     assert torch.isfinite(depth.grad).all() and float(depth.grad[~mask].abs().max()) == 0.0
 
 
-def test_an_empty_mask_gives_zero_pixels_and_infinite_residual():
+@pytest.mark.parametrize("backend", ["torch", "auto"])
+def test_an_empty_mask_gives_zero_pixels_and_infinite_residual(backend):
+    kernels = build_kernels(RenderSettings(backend=backend), "cpu")
     _, frame = target_frame()
     h, w = frame.depth.shape
     out = RenderOutput(torch.zeros(h, w, 3), torch.zeros(h, w), torch.zeros(h, w), torch.zeros(h, w, 3))
-    loss = tracking_loss(out, frame, TrackingSettings(), use_semantics=True)
+    loss = kernels.tracking_loss(out, frame, TrackingSettings(), use_semantics=True)
     assert int(loss.pixels) == 0 and float(loss.total) == 0.0 and loss.depth_residual_m.item() == float("inf")
-    assert float(mapping_loss(out, dataclasses.replace(frame, depth=torch.zeros(h, w)), MappingSettings(), False)) >= 0
+    no_depth = dataclasses.replace(frame, depth=torch.zeros(h, w))
+    assert float(kernels.mapping_loss(out, no_depth, MappingSettings(), False)) >= 0
 
 
 def adam_settings(**adam: float) -> TrackingSettings:
@@ -72,12 +78,12 @@ def adam_settings(**adam: float) -> TrackingSettings:
 def test_reading_the_stop_test_less_often_changes_nothing_but_the_stop_step():
     gm, frame = target_frame()
     start = se3_exp(torch.tensor([0.02, -0.01, 0.01, 0.01, -0.015, 0.005], dtype=torch.float64)).numpy()
-    fixed = [track(gm, frame, start, adam_settings(early_stop=False, stop_check_every=c), SETTINGS, True)
+    fixed = [track(gm, frame, start, adam_settings(early_stop=False, stop_check_every=c), TORCH, True)
              for c in (1, 7)]  # fmt: skip
     assert fixed[0].iterations == fixed[1].iterations == 60
     assert np.array_equal(fixed[0].w2c, fixed[1].w2c) and fixed[0].loss == fixed[1].loss
     assert np.abs(fixed[0].w2c - np.eye(4)).max() < 0.2 * np.abs(start - np.eye(4)).max()  # it converged
-    every, sparse = (track(gm, frame, start, adam_settings(stop_check_every=c), SETTINGS, True)
+    every, sparse = (track(gm, frame, start, adam_settings(stop_check_every=c), TORCH, True)
                      for c in (1, 7))  # fmt: skip
     assert every.converged and sparse.converged
     assert sparse.iterations % 7 == 0 and every.iterations <= sparse.iterations  # stops only where it reads
@@ -115,9 +121,9 @@ def test_a_newer_frame_waiting_ends_tracking_after_its_minimum_steps():
     start = se3_exp(torch.tensor([0.02, -0.01, 0.01, 0.01, -0.015, 0.005], dtype=torch.float64)).numpy()
     s = adam_settings(min_iterations=3)
     asked: list[int] = []
-    cut = track(gm, frame, start, s, SETTINGS, True, newer_frame_waiting=lambda: asked.append(1) or True)
+    cut = track(gm, frame, start, s, TORCH, True, newer_frame_waiting=lambda: asked.append(1) or True)
     assert cut.iterations == 3 and not cut.converged and len(asked) == 1  # asked from the minimum on only
-    full = track(gm, frame, start, s, SETTINGS, True, newer_frame_waiting=lambda: False)
+    full = track(gm, frame, start, s, TORCH, True, newer_frame_waiting=lambda: False)
     assert full.iterations > 3 and full.loss < cut.loss
-    alone = track(gm, frame, start, adam_settings(min_iterations=3, iterations=3), SETTINGS, True)
+    alone = track(gm, frame, start, adam_settings(min_iterations=3, iterations=3), TORCH, True)
     assert np.array_equal(cut.w2c, alone.w2c)  # the best of the steps made, as a 3-step budget gives

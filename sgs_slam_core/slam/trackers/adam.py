@@ -8,9 +8,9 @@ from dataclasses import replace
 import numpy as np
 
 from sgs_slam_core.config.sections import TrackingSettings
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
-from sgs_slam_core.render.settings import RenderSettings
-from sgs_slam_core.slam.frame_data import FrameTensors
+from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.slam.tracker import TrackResult, track
 
 __all__ = ["AdamTracker"]
@@ -23,8 +23,8 @@ class AdamTracker:
     with early stopping.
     """
 
-    def __init__(self, settings: TrackingSettings, render_settings: RenderSettings) -> None:
-        self.settings, self.render_settings = settings, render_settings
+    def __init__(self, settings: TrackingSettings, kernels: Kernels) -> None:
+        self.settings, self.kernels = settings, kernels
 
     def track(
         self,
@@ -35,6 +35,5 @@ class AdamTracker:
         newer_frame_waiting: Callable[[], bool] | None = None,
     ) -> TrackResult:
         """Adam from ``init_w2c``, keeping the best evaluated pose (one render per step)."""
-        result = track(gaussians, frame, init_w2c, self.settings, self.render_settings, use_semantics,
-                       newer_frame_waiting)  # fmt: skip
+        result = track(gaussians, frame, init_w2c, self.settings, self.kernels, use_semantics, newer_frame_waiting)
         return replace(result, renders=result.iterations)

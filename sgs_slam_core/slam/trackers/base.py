@@ -7,8 +7,8 @@ from typing import Protocol
 
 import numpy as np
 
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
-from sgs_slam_core.slam.frame_data import FrameTensors
 from sgs_slam_core.slam.tracker import TrackResult
 
 __all__ = ["Tracker"]

@@ -11,23 +11,20 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import replace
-from types import ModuleType
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from sgs_slam_core.config.sections import TrackingSettings
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.icp import IcpLevel, align_device, channel_pyramid, icp_pyramid, source_channels
-from sgs_slam_core.geometry.icp_native import EXTENSION
 from sgs_slam_core.geometry.se3 import se3_inverse
+from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.profiling import stage
-from sgs_slam_core.render.api import RenderOutput, render
-from sgs_slam_core.render.settings import RenderSettings
-from sgs_slam_core.slam.frame_data import FrameTensors
-from sgs_slam_core.slam.losses import tracking_loss
+from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.slam.tracker import TrackResult, track
 
 __all__ = ["GaussNewtonTracker"]
@@ -43,16 +40,10 @@ class GaussNewtonTracker:
     that many Adam steps instead.
     """
 
-    def __init__(self, settings: TrackingSettings, render_settings: RenderSettings) -> None:
-        self.settings, self.render_settings = settings, render_settings
+    def __init__(self, settings: TrackingSettings, kernels: Kernels) -> None:
+        self.settings, self.kernels = settings, kernels
         self.gn = settings.gauss_newton
         self.icp = self.gn.icp
-
-    def _native(self, device: torch.device) -> ModuleType | None:
-        """The compiled step on the CPU where the render backend allows compiled kernels, else None."""
-        if device.type != "cpu" or self.render_settings.backend not in ("auto", "cpu"):
-            return None
-        return EXTENSION.module() if EXTENSION.is_available() else None
 
     def track(
         self,
@@ -78,7 +69,7 @@ class GaussNewtonTracker:
             polish = replace(a, iterations=self.gn.adam_steps, lr_rotation=a.lr_rotation * scale,
                              lr_translation=a.lr_translation * scale)  # fmt: skip
             adam = replace(self.settings, adam=polish)
-            polished = track(gaussians, frame, w2c.cpu().numpy(), adam, self.render_settings, use_semantics,
+            polished = track(gaussians, frame, w2c.cpu().numpy(), adam, self.kernels, use_semantics,
                              newer_frame_waiting)  # fmt: skip
             return replace(polished, iterations=steps + polished.iterations, time_s=time.perf_counter() - t0,
                            renders=self.gn.renders + polished.iterations)  # fmt: skip
@@ -92,13 +83,12 @@ class GaussNewtonTracker:
         channels = self._channels(frame.rgb, frame.semantic if semantic else None)
         sources = None if channels is None else source_channels(channels, levels)
         eye = torch.eye(4, dtype=torch.float64, device=w2c.device)
-        native = self._native(w2c.device)
         for _ in range(self.gn.renders):
             with stage("track.render"):
-                out = render(gaussians, k, w2c.float(), self.render_settings, with_semantics=semantic)
+                out = self.kernels.render(gaussians, k, w2c.float(), with_semantics=semantic)
             with stage("track.solve"):
                 reference = self._reference(out, k, levels, semantic)
-                aligned = align_device(depth, k, reference, eye, self.icp, sources, native)
+                aligned = align_device(depth, k, reference, eye, self.icp, sources, self.kernels.icp_terms)
                 w2c = se3_inverse(aligned.src_to_ref) @ w2c  # the frame's camera -> the rendered camera
         return w2c
 
@@ -141,9 +131,9 @@ class GaussNewtonTracker:
     ) -> TrackResult:
         """The tracking loss at the solved pose, read back with the pose in one host read."""
         with stage("track.render"):
-            out = render(gaussians, frame.intrinsics, w2c.float(), self.render_settings, with_semantics=use_semantics)
+            out = self.kernels.render(gaussians, frame.intrinsics, w2c.float(), with_semantics=use_semantics)
         with stage("track.loss"):
-            loss = tracking_loss(out, frame, self.settings, use_semantics)
+            loss = self.kernels.tracking_loss(out, frame, self.settings, use_semantics)
             stats = torch.stack([loss.total.detach().double(), loss.pixels.double(),
                                  loss.depth_residual_m.detach().double()])  # fmt: skip
         values = torch.cat([stats, w2c.reshape(-1)]).cpu().numpy()

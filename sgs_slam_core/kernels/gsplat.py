@@ -1,7 +1,8 @@
-"""gsplat (CUDA) backend: one ``gsplat.rasterization`` call for colour, semantics and depth.
+"""The CUDA kernels: gsplat renders (one ``gsplat.rasterization`` call for colour, semantics and depth).
 
-gsplat is imported lazily and only for CUDA tensors: on a CPU machine with ``nvcc`` on the PATH any
-gsplat CUDA op would start a JIT build that fails (see ``shared/reference/RENDERER.md`` section 2.9).
+The losses are the PyTorch reference's with the convolutional SSIM window. gsplat is imported
+lazily and only for CUDA tensors: on a CPU machine with ``nvcc`` on the PATH any gsplat CUDA op
+would start a JIT build that fails.
 
 Differences from the torch backend, by design of gsplat 1.5: alpha is clamped to 0.999 (ours 0.99),
 footprints use gsplat's own radius rule, and its pixel centres sit at +0.5 (we shift cx, cy).
@@ -17,13 +18,16 @@ from typing import TYPE_CHECKING
 import torch
 from torch import Tensor
 
+from sgs_slam_core.errors import BackendUnavailableError
 from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.kernels.reference import ReferenceKernels
+from sgs_slam_core.render.output import CameraGaussians, RenderOutput, to_camera
 from sgs_slam_core.render.settings import RenderSettings
 
 if TYPE_CHECKING:
-    from sgs_slam_core.render.api import CameraGaussians
+    from sgs_slam_core.gaussians import GaussianMap
 
-__all__ = ["import_error", "is_available", "padded_channels", "rasterize"]
+__all__ = ["GsplatKernels", "import_error", "is_available", "padded_channels", "rasterize"]
 
 # Channel counts (features + depth) with a compiled kernel in gsplat 1.5 (csrc/Rasterization.cpp).
 _KERNEL_CHANNELS = (1, 2, 3, 4, 5, 8, 9, 16, 17, 32, 33, 64, 65, 128, 129, 256, 257, 512, 513)
@@ -60,7 +64,7 @@ def rasterize(cam: CameraGaussians, intrinsics: Intrinsics, settings: RenderSett
     """Returns ``(features [H, W, D], depth [H, W], silhouette [H, W])`` for camera-frame Gaussians."""
     mod = _load()
     if not isinstance(mod, ModuleType):
-        raise RuntimeError(f"gsplat unavailable: {import_error()}")
+        raise BackendUnavailableError(f"gsplat unavailable: {import_error()}")
     n, d = cam.features.shape
     width = padded_channels(d)
     feats = cam.features if width == d else torch.cat([cam.features, cam.features.new_zeros(n, width - d)], 1)
@@ -91,3 +95,20 @@ def rasterize(cam: CameraGaussians, intrinsics: Intrinsics, settings: RenderSett
     )
     out = colors[0]
     return out[..., :d], out[..., -1], alphas[0, ..., 0]
+
+
+class GsplatKernels(ReferenceKernels):
+    """gsplat's rasteriser for CUDA tensors; the losses and Gauss-Newton steps of the reference."""
+
+    name = "gsplat"
+
+    def __init__(self, settings: RenderSettings, device: torch.device) -> None:
+        super().__init__(settings, device, ssim_blur="conv")
+
+    def _render(
+        self, gaussians: GaussianMap, intrinsics: Intrinsics, w2c: Tensor, with_semantics: bool
+    ) -> RenderOutput:
+        feats, depth, sil = rasterize(to_camera(gaussians, w2c, with_semantics), intrinsics, self.settings)
+        return RenderOutput(
+            color=feats[..., :3], depth=depth, silhouette=sil, semantic=feats[..., 3:], backend=self.name
+        )

@@ -1,4 +1,4 @@
-"""The compiled CPU kernel of a Gauss-Newton step (``cpu/gauss_newton.cpp``), beside its PyTorch reference.
+"""The Gauss-Newton step's terms in one compiled pass (``gauss_newton.cpp``), as ``geometry.icp`` computes them.
 
 One pass over the source points gives the step's normal equations and the truncated cost that
 ``geometry.icp`` computes with a dozen tensor operations per step; tests compare the two.
@@ -6,26 +6,20 @@ One pass over the source points gives the step's normal equations and the trunca
 
 from __future__ import annotations
 
-from pathlib import Path
-from types import ModuleType
-
 from torch import Tensor
 
-from sgs_slam_core.native import NativeExtension
+from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.kernels.cpu.extensions import GAUSS_NEWTON
 
-__all__ = ["EXTENSION", "native_terms"]
-
-EXTENSION = NativeExtension("gauss_newton", Path(__file__).with_name("cpu") / "gauss_newton.cpp",
-                            "the Gauss-Newton tracker's CPU kernel")  # fmt: skip
+__all__ = ["icp_terms"]
 
 
-def native_terms(
-    module: ModuleType,
+def icp_terms(
     src_to_ref: Tensor,  # [4, 4] float64
     points: Tensor,  # [N, 3] float32 source points, z = 0 where invalid
     values: Tensor | None,  # [N, C] float32 source channels
     packed: Tensor,  # [H * W, 7 (+ 3C + 1)] the reference level's rows
-    intrinsics: tuple[float, float, float, float, int, int],  # fx, fy, cx, cy, width, height
+    intrinsics: Intrinsics,  # the reference level's camera
     max_distance_m: float,
     huber_m: float,
 ) -> Tensor:  # [53] float64: normal matrix [49], truncated cost, correspondences, their sum r^2, source points
@@ -34,7 +28,9 @@ def native_terms(
     One thread: a frame's few thousand points take well under a millisecond, and a second OpenMP
     thread would spin against the live pipeline's other worker.
     """
-    fx, fy, cx, cy, width, height = intrinsics
-    empty = points.new_zeros((0, 0))
-    return module.gauss_newton_terms(src_to_ref, points, empty if values is None else values, packed, fx, fy, cx, cy,
-                                     width, height, max_distance_m, huber_m, 1)  # fmt: skip
+    k = intrinsics
+    channels = points.new_zeros((0, 0)) if values is None else values
+    camera = (k.fx, k.fy, k.cx, k.cy, k.width, k.height)
+    return GAUSS_NEWTON.module().gauss_newton_terms(
+        src_to_ref, points, channels, packed, *camera, max_distance_m, huber_m, 1
+    )

@@ -37,8 +37,7 @@ namespace {
 constexpr int kGeomGrads = 6;  // u, v, A, B, C, opacity
 
 // ---------------------------------------------------------------------------------------------
-// SIMD packs: 16 floats with AVX-512 (measured 20-25% faster than 8 on an AVX-512 Xeon), else 8;
-// 4 doubles.
+// SIMD packs: 16 floats with AVX-512 (faster there than 8), else 8; 4 doubles.
 template <typename T>
 struct Pack;
 #if defined(__AVX512F__)
@@ -1083,9 +1082,8 @@ void prepare_world_all(const Camera& k, int64_t n, int64_t ns, const T* m, const
 
 // prepare_world_all for float, Pack<float>::W Gaussians at a time in SIMD lanes: the same formulas in
 // the same order, IEEE divisions and square roots in the lanes and the scalar libm's exp and log per
-// lane, so for finite inputs the results are bit for bit the scalar path's (tested). A polynomial
-// exp and log (~1 ulp) were faster still, but rounding-level changes move TUM's chaotic trajectory:
-// its ATE over seeds 0-3 was 3.20 cm on average against 2.82 (BENCHMARKS.md, issue 16, fifth stop).
+// lane, so for finite inputs the results are bit for bit the scalar path's (tested); a faster
+// polynomial exp would change the rounding, and with it the trajectories of real sequences.
 // The tail (n % W Gaussians) takes the scalar path.
 void prepare_world(const Camera& k, int64_t n, int64_t ns, const float* m, const float* ls, const float* lo,
                    const float* col, const float* sem, const float* P, float* pmc, float* psc, float* pop, float* pf,

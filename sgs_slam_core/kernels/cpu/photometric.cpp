@@ -3,7 +3,7 @@
 //
 //   L = (1 - w) mean|x - y| + w (1 - mean SSIM(x, y))
 //
-// Same maths as sgs_slam_core/slam/photometric.py's reference (metrics/image.py `ssim` with
+// Same maths as sgs_slam_core/slam/photometric.py (metrics/image.py `ssim` with
 // padding="same"): x, y are [H, W, C] images (channels last), SSIM uses a normalised Gaussian window
 // of `size` taps, zero padding ("same" output), C1 = 0.01^2, C2 = 0.03^2:
 //   mu = blur(x), E_xx = blur(x^2), E_xy = blur(x y), ...
@@ -18,9 +18,9 @@
 //
 // The blur is separable: per output row, a vertical pass sums the window's rows into zero-padded
 // row buffers, then a horizontal pass reads them at offsets of C, both in 64-byte vectors whose sums
-// stay in registers over the taps (0.57x the time of a per-tap read-modify-write at 160x120 x 3,
-// same results). OpenMP over rows; per-row partial sums are added in row order, so the result does
-// not depend on the thread count.
+// stay in registers over the taps (faster than a per-tap read-modify-write, same results). OpenMP
+// over rows; per-row partial sums are added in row order, so the result does not depend on the
+// thread count.
 
 #include <torch/extension.h>
 #include <omp.h>

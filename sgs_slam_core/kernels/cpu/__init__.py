@@ -1,0 +1,1 @@
+"""The compiled CPU kernels: C++ sources beside their Python wrappers, built on first use."""

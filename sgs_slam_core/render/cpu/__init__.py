@@ -1,1 +1,0 @@
-"""C++ sources of the compiled CPU backend (built on first use by ``render.cpu_backend``)."""

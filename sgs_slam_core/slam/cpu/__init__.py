@@ -1,1 +1,0 @@
-"""C++ source of the fused photometric loss (built on first use by ``slam.photometric``)."""
