@@ -26,7 +26,7 @@ def test_the_reference_backend_never_touches_a_compiled_kernel(tiny_scene, monke
         monkeypatch.setattr(NativeExtension, name, refuse)
     monkeypatch.setattr(factory, "_CACHE", {})
     tiny = open_dataset(tiny_scene)
-    overrides = [*FAST_SLAM, "render.backend=torch", f"tracking.method={method}", "tracking.iterations=4"]
+    overrides = [*FAST_SLAM, "render.backend=torch", f"tracking.method={method}", "tracking.adam.iterations=4"]
     slam = Slam(load_config("synthetic", overrides=overrides), tiny.label_table)
     slam.prepare(lambda line: pytest.fail(f"announced {line!r}"))
     for i in range(3):
