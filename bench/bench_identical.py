@@ -12,8 +12,10 @@ Each input runs on the compiled CPU path and on the pure-PyTorch reference path.
 selects the reference path is a per-side option (an environment variable or config overrides),
 since that is what a refactoring may change:
 
-    python bench/bench_identical.py --base /work/base --tum ../shared/data/tum_fr3_teddy \\
-        --base-reference-env SGS_SLAM_NO_CPP=1 --new-reference-set render.backend=torch
+    python bench/bench_identical.py --base /work/base --tum ../shared/data/tum_fr3_teddy
+
+(the defaults: a baseline from before ``render.backend: torch`` meant pure PyTorch selects it with
+``SGS_SLAM_NO_CPP=1``, this checkout with ``render.backend=torch``)
 
 Exit status 0 when every pair is identical, 1 otherwise (the differing files are named).
 """
@@ -130,8 +132,8 @@ def main() -> int:
     parser.add_argument("--paths", nargs="*", default=["compiled", "reference"], choices=["compiled", "reference"])
     parser.add_argument("--base-reference-env", nargs="*", default=["SGS_SLAM_NO_CPP=1"], metavar="NAME=VALUE")
     parser.add_argument("--base-reference-set", nargs="*", default=[], metavar="KEY=VALUE")
-    parser.add_argument("--new-reference-env", nargs="*", default=["SGS_SLAM_NO_CPP=1"], metavar="NAME=VALUE")
-    parser.add_argument("--new-reference-set", nargs="*", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--new-reference-env", nargs="*", default=[], metavar="NAME=VALUE")
+    parser.add_argument("--new-reference-set", nargs="*", default=["render.backend=torch"], metavar="KEY=VALUE")
     parser.add_argument("-j", "--jobs", type=int, default=2, help="runs at once (default 2)")
     args = parser.parse_args()
 
