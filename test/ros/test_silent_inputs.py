@@ -27,16 +27,14 @@ def test_missing_label_topic_is_reported_once_and_clears(tiny_scene):
     spinner = Spinner(ctx, [*nodes, feeder])
     try:
         assert wait_for(feeder.connected, 10.0)
-        # a camera driver without the segmentation node: colour, depth and camera_info only, for 4 s
-        end, i = time.monotonic() + 4.0, 0
+        # a camera driver without the segmentation node: colour, depth and camera_info only, for 3 s
+        end, i = time.monotonic() + 3.0, 0
         while time.monotonic() < end:
             feeder.publish(dataclasses.replace(frames[0], stamp_ns=(i + 1) * 10**8), semantic=False)
             i += 1
             time.sleep(0.1)
-        # a status from while the camera was sending (one read after it stopped may say "no input" instead)
-        during = diagnostics_of(diag, "tracking_node")
-        assert during, "no /diagnostics while the camera was sending"
-        level, message, values = during[-1]
+        assert wait_for(lambda: diagnostics_of(diag, "tracking_node"), 3.0)
+        level, message, values = diagnostics_of(diag, "tracking_node")[-1]
         assert level == WARN and "/semantic/image" in message, message
         assert values["silent_inputs"] == "/semantic/image"
         assert int(values["frames_in"]) >= 20 and values["frames_tracked"] == "0"
