@@ -19,7 +19,7 @@ OK, WARN = 0, 1
 def test_missing_label_topic_is_reported_once_and_clears(tiny_scene):
     frames = tiny_frames(tiny_scene)
     ctx = new_context()
-    nodes = build_slam_nodes(context=ctx, parameter_overrides=node_params(stale_input_s=0.5))  # use_semantics: true
+    nodes = build_slam_nodes(context=ctx, parameter_overrides=node_params(stale_input_s=1.0))  # use_semantics: true
     feeder = Feeder(ctx)
     diag, logs = [], []
     feeder.create_subscription(DiagnosticArray, "/diagnostics", diag.append, 50)
