@@ -40,6 +40,13 @@ def _warm_up(slam: Slam) -> None:
         cpu_backend.is_available()
 
 
+def _step_times(step) -> tuple[float, float]:
+    """(tracking, mapping) seconds of one step, from either result shape a compared commit has."""
+    if hasattr(step, "track_time_s"):  # commits before StepResult held the track and map outcomes
+        return step.track_time_s, step.map_time_s
+    return step.track.time_s, step.map.time_s
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("input", type=Path)
@@ -64,15 +71,15 @@ def main() -> None:
             total = time.perf_counter() - t0
             poses.append(step.c2w)
             gts.append(frame.gt_c2w)
-            _reply({"track_s": step.track.time_s, "map_s": step.map.time_s, "total_s": total,
-                    "gaussians": slam.num_gaussians})  # fmt: skip
+            track_s, map_s = _step_times(step)
+            _reply({"track_s": track_s, "map_s": map_s, "total_s": total, "gaussians": slam.num_gaussians})
         elif cmd.get("finish"):
             pairs = [(p, g) for p, g in zip(poses, gts, strict=True) if g is not None]
             rmse = None
             if len(pairs) > 2:
                 rmse = ate(np.stack([p for p, _ in pairs]), np.stack([g for _, g in pairs])).rmse
-            _reply({"ate_rmse_m": rmse, "frames": len(poses), "num_gaussians": slam.num_gaussians,
-                    "source": str(Path(sgs_slam_core.__file__).parents[1])})  # fmt: skip
+            source = str(Path(sgs_slam_core.__file__).parents[1])
+            _reply({"ate_rmse_m": rmse, "frames": len(poses), "num_gaussians": slam.num_gaussians, "source": source})
             return
 
 
