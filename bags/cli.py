@@ -39,8 +39,14 @@ def _convert(args: argparse.Namespace) -> int:
     preset = default_preset(args.input, args.format)
     try:
         name = f"{dataset.name}/{args.input.name}"
-        summary = convert(dataset, out, compress=args.compress == "zstd", dataset_name=name,
-                          progress=lambda done, _: bar.update(done), preset=preset)  # fmt: skip
+        summary = convert(
+            dataset,
+            out,
+            compress=args.compress == "zstd",
+            dataset_name=name,
+            progress=lambda done, _: bar.update(done),
+            preset=preset,
+        )
     except BaseException as err:
         shutil.rmtree(out, ignore_errors=True)  # a bag without its metadata is of no use; it did not exist before
         if isinstance(err, WriterError):

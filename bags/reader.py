@@ -105,8 +105,11 @@ def read_depth_units(path: Path, custom: dict[str, str]) -> float:
 
     The key is ``depth_units_per_metre``; ``depth_scale`` (the nodes' parameter name) is read too.
     """
-    values = {k: as_float(custom[k], f"{path}: metadata custom_data {k}", BagError, 0.0, lo_open=True)
-              for k in DEPTH_UNITS_KEYS if k in custom}  # fmt: skip
+    values = {
+        k: as_float(custom[k], f"{path}: metadata custom_data {k}", BagError, 0.0, lo_open=True)
+        for k in DEPTH_UNITS_KEYS
+        if k in custom
+    }
     if len(set(values.values())) > 1:
         raise BagError(f"{path}: metadata custom_data disagree on the depth units: {values}")
     return next(iter(values.values()), DEFAULT_DEPTH_UNITS_PER_M)

@@ -18,19 +18,32 @@ def _header(ts: Typestore, h: dict[str, Any]) -> Any:
 def image(ts: Typestore, f: dict[str, Any]) -> Any:
     """sensor_msgs/msg/Image."""
     return ts.types["sensor_msgs/msg/Image"](
-        header=_header(ts, f["header"]), height=f["height"], width=f["width"], encoding=f["encoding"],
-        is_bigendian=f["is_bigendian"], step=f["step"], data=np.frombuffer(f["data"], dtype=np.uint8),
-    )  # fmt: skip
+        header=_header(ts, f["header"]),
+        height=f["height"],
+        width=f["width"],
+        encoding=f["encoding"],
+        is_bigendian=f["is_bigendian"],
+        step=f["step"],
+        data=np.frombuffer(f["data"], dtype=np.uint8),
+    )
 
 
 def camera_info(ts: Typestore, f: dict[str, Any]) -> Any:
     """sensor_msgs/msg/CameraInfo."""
     roi = ts.types["sensor_msgs/msg/RegionOfInterest"](**f["roi"])
     return ts.types["sensor_msgs/msg/CameraInfo"](
-        header=_header(ts, f["header"]), height=f["height"], width=f["width"], distortion_model=f["distortion_model"],
-        d=np.asarray(f["d"], np.float64), k=np.asarray(f["k"], np.float64), r=np.asarray(f["r"], np.float64),
-        p=np.asarray(f["p"], np.float64), binning_x=f["binning_x"], binning_y=f["binning_y"], roi=roi,
-    )  # fmt: skip
+        header=_header(ts, f["header"]),
+        height=f["height"],
+        width=f["width"],
+        distortion_model=f["distortion_model"],
+        d=np.asarray(f["d"], np.float64),
+        k=np.asarray(f["k"], np.float64),
+        r=np.asarray(f["r"], np.float64),
+        p=np.asarray(f["p"], np.float64),
+        binning_x=f["binning_x"],
+        binning_y=f["binning_y"],
+        roi=roi,
+    )
 
 
 def pose_stamped(ts: Typestore, f: dict[str, Any]) -> Any:

@@ -82,32 +82,49 @@ def main() -> None:
     data = args.input or ensure_room(default_room_dir())
     downscale = args.downscale or (2.0 if args.input is None else 1.0)
     preset = args.preset or default_preset(data, "auto")
-    worker_args = [str(data.resolve()), "--preset", preset, "--downscale", str(downscale),
-                   *(["--max-frames", str(args.max_frames)] if args.max_frames else []),
-                   *[a for o in [*args.overrides, "device=cpu"] for a in ("--set", o)]]  # fmt: skip
+    worker_args = [
+        str(data.resolve()),
+        "--preset",
+        preset,
+        "--downscale",
+        str(downscale),
+        *(["--max-frames", str(args.max_frames)] if args.max_frames else []),
+        *[a for o in [*args.overrides, "device=cpu"] for a in ("--set", o)],
+    ]
     sides = [_start("base", args.base.resolve(), worker_args), _start("new", args.new.resolve(), worker_args)]
     frames = min(side.read()["frames"] for side in sides)
     for i in range(frames):
         for side in sides if i % 2 == 0 else sides[::-1]:
             side.totals.append(side.ask({"frame": i})["total_s"])
         if i % 10 == 0:
-            print(f"frame {i}/{frames}: " + ", ".join(f"{s.name} {1e3 * s.totals[-1]:.0f} ms" for s in sides),
-                  file=sys.stderr)  # fmt: skip
+            print(
+                f"frame {i}/{frames}: " + ", ".join(f"{s.name} {1e3 * s.totals[-1]:.0f} ms" for s in sides),
+                file=sys.stderr,
+            )
     for side in sides:
         side.finish = side.ask({"finish": True})
         side.proc.wait(timeout=60)
     base, new = (np.asarray(s.totals) * 1e3 for s in sides)
-    rows = [[s.name, _commit(s.checkout), f"{np.mean(t):.0f}", f"{np.median(t):.0f}",
-             f"{s.finish['num_gaussians']:,}",
-             f"{s.finish['ate_rmse_m'] * 100:.2f}" if s.finish["ate_rmse_m"] is not None else "-"]
-            for s, t in zip(sides, (base, new), strict=True)]  # fmt: skip
+    rows = [
+        [
+            s.name,
+            _commit(s.checkout),
+            f"{np.mean(t):.0f}",
+            f"{np.median(t):.0f}",
+            f"{s.finish['num_gaussians']:,}",
+            f"{s.finish['ate_rmse_m'] * 100:.2f}" if s.finish["ate_rmse_m"] is not None else "-",
+        ]
+        for s, t in zip(sides, (base, new), strict=True)
+    ]
     ratio_mean, ratio_median = np.mean(new) / np.mean(base), np.median(new) / np.median(base)
     body = markdown_table(["side", "commit", "ms/frame (mean)", "ms/frame (median)", "Gaussians", "ATE cm"], rows)
-    body += (f"\n\nTime per frame new/base: **{ratio_mean:.2f}x** (means), {ratio_median:.2f}x (medians); per-frame "
-             f"ratios p10/p50/p90 {np.percentile(new / base, 10):.2f} / {np.percentile(new / base, 50):.2f} / "
-             f"{np.percentile(new / base, 90):.2f}. {frames} frames of {data.name}, preset {preset}, "
-             f"downscale {downscale}, overrides {args.overrides or 'none'}; frames interleaved (order alternating), "
-             "tracking + mapping timed, loading not.\n")  # fmt: skip
+    body += (
+        f"\n\nTime per frame new/base: **{ratio_mean:.2f}x** (means), {ratio_median:.2f}x (medians); per-frame "
+        f"ratios p10/p50/p90 {np.percentile(new / base, 10):.2f} / {np.percentile(new / base, 50):.2f} / "
+        f"{np.percentile(new / base, 90):.2f}. {frames} frames of {data.name}, preset {preset}, "
+        f"downscale {downscale}, overrides {args.overrides or 'none'}; frames interleaved (order alternating), "
+        "tracking + mapping timed, loading not.\n"
+    )
     print(body)
     if not args.no_append:
         append_section(f"A/B: {data.name} x{downscale:g}, {preset}, new vs {_commit(args.base)}", body)

@@ -45,8 +45,9 @@ STAGES = ("prepare", "bin", "forward", "backward", "world backward")
 
 def build_revision(rev: str, key: str, folder: Path) -> ModuleType:
     """The revision's source of ``key`` built under its own module name."""
-    src = subprocess.run(["git", "show", f"{rev}:{SOURCES[key]}"], cwd=REPO, capture_output=True, text=True,
-                         check=True).stdout  # fmt: skip
+    src = subprocess.run(
+        ["git", "show", f"{rev}:{SOURCES[key]}"], cwd=REPO, capture_output=True, text=True, check=True
+    ).stdout
     name = f"bench_{key}_{abs(hash(src)) % 10**10}"
     path = folder / f"{name}.cpp"
     path.write_text(src)
@@ -74,11 +75,13 @@ def render_stages(ext: ModuleType, scene: dict, pose: torch.Tensor, grads: list[
     rows = ext.composite_backward(m2d, con, op, rad, feats, gids, offsets, t_final, count, groups, grads, None, *args)
     times["backward"], t = time.perf_counter() - t, time.perf_counter()
     try:
-        g = ext.world_isotropic_backward(scene["params"][0], pose, mc, sc, op, rows, groups[1], True, False, *cam,
-                                         s.near_plane, s.eps2d, th)  # fmt: skip
+        g = ext.world_isotropic_backward(
+            scene["params"][0], pose, mc, sc, op, rows, groups[1], True, False, *cam, s.near_plane, s.eps2d, th
+        )
     except TypeError:  # builds before need_params
-        g = ext.world_isotropic_backward(scene["params"][0], pose, mc, sc, op, rows, groups[1], False, *cam,
-                                         s.near_plane, s.eps2d, th)  # fmt: skip
+        g = ext.world_isotropic_backward(
+            scene["params"][0], pose, mc, sc, op, rows, groups[1], False, *cam, s.near_plane, s.eps2d, th
+        )
     times["world backward"] = time.perf_counter() - t
     return times, [*images, rows, *g[:5]]
 
@@ -142,8 +145,10 @@ def main() -> None:
         rows.append([stage, f"{a:.2f}", f"{b:.2f}", f"{b / a:.3f}"])
     n = scene["params"][0].shape[0]
     where = args.input.name if args.input else (f"map {args.scene.name}" if args.scene else "room")
-    print(f"{args.rev} vs working tree, {where} after {scene.get('frames', args.frames)} frames ({n:,} Gaussians), "
-          f"{k.width}x{k.height}, {args.repeats} x 20 poses, medians:\n")  # fmt: skip
+    print(
+        f"{args.rev} vs working tree, {where} after {scene.get('frames', args.frames)} frames ({n:,} Gaussians), "
+        f"{k.width}x{k.height}, {args.repeats} x 20 poses, medians:\n"
+    )
     print(markdown_table(["stage", f"{args.rev} ms", "working tree ms", "ratio"], rows))
 
 

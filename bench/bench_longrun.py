@@ -116,13 +116,28 @@ def _loop(slam: Slam, dataset: Dataset, count: int, every: int, est: list, gt: l
             fp = footprint(slam)
             done = (i + 1) - (samples[-1].frames if samples else 0)
             mb = 2**20
-            samples.append(Sample(i + 1, rss_mb(), peak_rss_mb(), fp.gaussians, fp.gaussian_bytes / mb, fp.keyframes,
-                                  fp.keyframe_bytes / mb, fp.keyframes_evicted, spent / done, cpu / done))  # fmt: skip
+            samples.append(
+                Sample(
+                    i + 1,
+                    rss_mb(),
+                    peak_rss_mb(),
+                    fp.gaussians,
+                    fp.gaussian_bytes / mb,
+                    fp.keyframes,
+                    fp.keyframe_bytes / mb,
+                    fp.keyframes_evicted,
+                    spent / done,
+                    cpu / done,
+                )
+            )
             spent = cpu = 0.0
             s = samples[-1]
-            print(f"{s.frames:6d} frames  {s.rss_mb:7.0f} MB (peak {s.peak_rss_mb:.0f})  {s.gaussians:8,d} G "
-                  f"({s.gaussian_mb:.0f} MB)  {s.keyframes:4d} kf ({s.keyframe_mb:.0f} MB, {s.evicted} evicted)  "
-                  f"{s.s_per_frame:.2f} s/frame ({s.cpu_s_per_frame:.2f} CPU s)", flush=True)  # fmt: skip
+            print(
+                f"{s.frames:6d} frames  {s.rss_mb:7.0f} MB (peak {s.peak_rss_mb:.0f})  {s.gaussians:8,d} G "
+                f"({s.gaussian_mb:.0f} MB)  {s.keyframes:4d} kf ({s.keyframe_mb:.0f} MB, {s.evicted} evicted)  "
+                f"{s.s_per_frame:.2f} s/frame ({s.cpu_s_per_frame:.2f} CPU s)",
+                flush=True,
+            )
 
 
 def per_loop(samples: list[Sample], est: np.ndarray, gt: np.ndarray, period: int) -> list[LoopRow]:
@@ -133,13 +148,20 @@ def per_loop(samples: list[Sample], est: np.ndarray, gt: np.ndarray, period: int
         inside = [s for s in samples if lo < s.frames <= hi]
         if hi - lo < period // 2 or not inside:
             continue  # a short last piece says little about a loop
-        rows.append(LoopRow(loop + 1, f"{lo + 1}-{hi}", float(np.mean([s.rss_mb for s in inside])),
-                            max(s.peak_rss_mb for s in inside), float(np.mean([s.gaussians for s in inside])),
-                            float(np.mean([s.keyframes for s in inside])),
-                            float(np.mean([s.keyframe_mb for s in inside])),
-                            float(np.mean([s.s_per_frame for s in inside])),
-                            float(np.mean([s.cpu_s_per_frame for s in inside])),
-                            100 * ate(est[lo:hi], gt[lo:hi]).rmse))  # fmt: skip
+        rows.append(
+            LoopRow(
+                loop + 1,
+                f"{lo + 1}-{hi}",
+                float(np.mean([s.rss_mb for s in inside])),
+                max(s.peak_rss_mb for s in inside),
+                float(np.mean([s.gaussians for s in inside])),
+                float(np.mean([s.keyframes for s in inside])),
+                float(np.mean([s.keyframe_mb for s in inside])),
+                float(np.mean([s.s_per_frame for s in inside])),
+                float(np.mean([s.cpu_s_per_frame for s in inside])),
+                100 * ate(est[lo:hi], gt[lo:hi]).rmse,
+            )
+        )
     return rows
 
 
@@ -155,17 +177,38 @@ def plot(samples: list[Sample], path: Path, title: str) -> None:
     """Memory, map size and time per frame against frames."""
     x = samples[1].frames - samples[0].frames if len(samples) > 1 else 1
     panels = [
-        line_panel([Series("resident set", np.array([s.rss_mb for s in samples]), (200, 90, 0)),
-                    Series("keyframe images", np.array([s.keyframe_mb for s in samples]), (30, 30, 200)),
-                    Series("Gaussian tensors", np.array([s.gaussian_mb for s in samples]), (40, 140, 40))],
-                   f"{title}: host memory", "MB", x_label="frames", x_step=x),
-        line_panel([Series("Gaussians / 1000", np.array([s.gaussians / 1e3 for s in samples]), (40, 140, 40)),
-                    Series("keyframes held", np.array([s.keyframes for s in samples], float), (30, 30, 200))],
-                   "map size", "count", x_label="frames", x_step=x),
-        line_panel([Series("wall", np.array([s.s_per_frame for s in samples]), (120, 40, 160)),
-                    Series("CPU (all threads)", np.array([s.cpu_s_per_frame for s in samples]), (0, 140, 220))],
-                   "Slam.process", "s", x_label="frames", x_step=x),
-    ]  # fmt: skip
+        line_panel(
+            [
+                Series("resident set", np.array([s.rss_mb for s in samples]), (200, 90, 0)),
+                Series("keyframe images", np.array([s.keyframe_mb for s in samples]), (30, 30, 200)),
+                Series("Gaussian tensors", np.array([s.gaussian_mb for s in samples]), (40, 140, 40)),
+            ],
+            f"{title}: host memory",
+            "MB",
+            x_label="frames",
+            x_step=x,
+        ),
+        line_panel(
+            [
+                Series("Gaussians / 1000", np.array([s.gaussians / 1e3 for s in samples]), (40, 140, 40)),
+                Series("keyframes held", np.array([s.keyframes for s in samples], float), (30, 30, 200)),
+            ],
+            "map size",
+            "count",
+            x_label="frames",
+            x_step=x,
+        ),
+        line_panel(
+            [
+                Series("wall", np.array([s.s_per_frame for s in samples]), (120, 40, 160)),
+                Series("CPU (all threads)", np.array([s.cpu_s_per_frame for s in samples]), (0, 140, 220)),
+            ],
+            "Slam.process",
+            "s",
+            x_label="frames",
+            x_step=x,
+        ),
+    ]
     path.parent.mkdir(parents=True, exist_ok=True)
     save_panels(path, panels)
 
@@ -173,17 +216,49 @@ def plot(samples: list[Sample], path: Path, title: str) -> None:
 def report(rows: list[LoopRow], samples: list[Sample], plot_path: Path, what: str) -> str:
     """Markdown: what ran, the drift from loop 2 on, the plot and the per-loop table."""
     table = markdown_table(
-        ["loop", "frames", "RSS MB", "peak RSS MB", "Gaussians", "keyframes", "keyframe MB", "s/frame", "CPU s/frame",
-         "ATE cm"],
-        [[r.loop, r.frames, f"{r.rss_mb:.0f}", f"{r.peak_rss_mb:.0f}", f"{r.gaussians:,.0f}", f"{r.keyframes:.0f}",
-          f"{r.keyframe_mb:.1f}", f"{r.s_per_frame:.2f}", f"{r.cpu_s_per_frame:.2f}", f"{r.ate_cm:.2f}"] for r in rows],
-    )  # fmt: skip
-    drifts = ", ".join(f"{name} {100 * drift(rows, f):.1f} %" for name, f in
-                       (("RSS", "rss_mb"), ("Gaussians", "gaussians"), ("keyframe MB", "keyframe_mb"),
-                        ("wall time per frame", "s_per_frame"), ("CPU time per frame", "cpu_s_per_frame")))  # fmt: skip
-    return (f"{what} Peak resident memory {max(s.peak_rss_mb for s in samples):.0f} MB. Largest change of a loop's "
-            f"mean from loop 2 on (against loop 2): {drifts}.\n\n![long run]({plot_path.relative_to(REPO)})\n\n"
-            f"{table}\n")  # fmt: skip
+        [
+            "loop",
+            "frames",
+            "RSS MB",
+            "peak RSS MB",
+            "Gaussians",
+            "keyframes",
+            "keyframe MB",
+            "s/frame",
+            "CPU s/frame",
+            "ATE cm",
+        ],
+        [
+            [
+                r.loop,
+                r.frames,
+                f"{r.rss_mb:.0f}",
+                f"{r.peak_rss_mb:.0f}",
+                f"{r.gaussians:,.0f}",
+                f"{r.keyframes:.0f}",
+                f"{r.keyframe_mb:.1f}",
+                f"{r.s_per_frame:.2f}",
+                f"{r.cpu_s_per_frame:.2f}",
+                f"{r.ate_cm:.2f}",
+            ]
+            for r in rows
+        ],
+    )
+    drifts = ", ".join(
+        f"{name} {100 * drift(rows, f):.1f} %"
+        for name, f in (
+            ("RSS", "rss_mb"),
+            ("Gaussians", "gaussians"),
+            ("keyframe MB", "keyframe_mb"),
+            ("wall time per frame", "s_per_frame"),
+            ("CPU time per frame", "cpu_s_per_frame"),
+        )
+    )
+    return (
+        f"{what} Peak resident memory {max(s.peak_rss_mb for s in samples):.0f} MB. Largest change of a loop's "
+        f"mean from loop 2 on (against loop 2): {drifts}.\n\n![long run]({plot_path.relative_to(REPO)})\n\n"
+        f"{table}\n"
+    )
 
 
 def main() -> int:
@@ -218,14 +293,24 @@ def main() -> int:
     name = f"longrun_{size}_{args.frames}{'_' + args.tag if args.tag else ''}"
     plot_path = RESULTS / f"{name}.png"
     plot(samples, plot_path, f"room orbit {size}")
-    (RESULTS / f"{name}.json").write_text(json.dumps({"commit": commit(), "overrides": overrides,
-                                                      "samples": [asdict(s) for s in samples],
-                                                      "loops": [asdict(r) for r in rows]}, indent=1))  # fmt: skip
-    what = (f"The synthetic room's orbit ({args.loop_frames} frames at {size}, there and back: {period} frames a "
-            f"loop) for {args.frames:,} frames through `Slam.process` (lockstep, CPU), preset `{args.preset}`, "
-            f"tracking {config.tracking.adam.iterations} and mapping {config.mapping.iterations} iterations"
-            f"{' (reduced for time)' if args.tracking_iterations or args.mapping_iterations else ''}; keyframes "
-            f"capped at {config.keyframes.max_keyframes} / {config.keyframes.max_megabytes} MiB.")  # fmt: skip
+    (RESULTS / f"{name}.json").write_text(
+        json.dumps(
+            {
+                "commit": commit(),
+                "overrides": overrides,
+                "samples": [asdict(s) for s in samples],
+                "loops": [asdict(r) for r in rows],
+            },
+            indent=1,
+        )
+    )
+    what = (
+        f"The synthetic room's orbit ({args.loop_frames} frames at {size}, there and back: {period} frames a "
+        f"loop) for {args.frames:,} frames through `Slam.process` (lockstep, CPU), preset `{args.preset}`, "
+        f"tracking {config.tracking.adam.iterations} and mapping {config.mapping.iterations} iterations"
+        f"{' (reduced for time)' if args.tracking_iterations or args.mapping_iterations else ''}; keyframes "
+        f"capped at {config.keyframes.max_keyframes} / {config.keyframes.max_megabytes} MiB."
+    )
     body = report(rows, samples, plot_path, what)
     print(body)
     if not args.no_append:

@@ -44,8 +44,9 @@ def open3d_odometry(dataset: Dataset) -> tuple[list[float], np.ndarray, np.ndarr
         f = dataset[i]
         color = o3d.geometry.Image(np.ascontiguousarray(f.rgb))
         depth = o3d.geometry.Image(np.ascontiguousarray(f.depth.astype(np.float32)))
-        return o3d.geometry.RGBDImage.create_from_color_and_depth(color, depth, depth_scale=1.0,
-                                                                  convert_rgb_to_intensity=True)  # fmt: skip
+        return o3d.geometry.RGBDImage.create_from_color_and_depth(
+            color, depth, depth_scale=1.0, convert_rgb_to_intensity=True
+        )
 
     poses, truth, times = [np.eye(4)], [dataset[0].gt_c2w], []
     previous = rgbd(0)
@@ -76,8 +77,14 @@ def main() -> None:
     dataset = open_dataset(args.input, "auto", DatasetOptions(max_frames=args.max_frames, downscale=args.downscale))
     k = dataset.intrinsics
     times, est, gt = open3d_odometry(dataset)
-    rows = [["Open3D RGB-D odometry (hybrid, frame to frame)", f"{np.median(times):.1f}", f"{np.mean(times):.1f}",
-             f"{ate(est, gt).rmse * 100:.2f}"]]  # fmt: skip
+    rows = [
+        [
+            "Open3D RGB-D odometry (hybrid, frame to frame)",
+            f"{np.median(times):.1f}",
+            f"{np.mean(times):.1f}",
+            f"{ate(est, gt).rmse * 100:.2f}",
+        ]
+    ]
     if args.ours:
         preset = default_preset(args.input, "auto")
         config = load_config(preset, None, [*args.overrides, "device=cpu"])
@@ -85,11 +92,14 @@ def main() -> None:
         result = run_offline(dataset, config, out, overwrite=True, provenance={"bench": True}, show_progress=False)
         track = [s.track.time_s * 1e3 for s in result.steps[1:]]
         name = f"this SLAM, tracking.method={config.tracking.method} (preset {preset})"
-        rows.append([name, f"{np.median(track):.1f}", f"{np.mean(track):.1f}",
-                     f"{result.metrics['ate_rmse_m'] * 100:.2f}"])  # fmt: skip
-    body = (f"{dataset.name}, {len(dataset)} frames at {k.width}x{k.height}, same process:\n\n"
-            + markdown_table(["method", "tracking ms/frame (median)", "mean", "ATE RMSE (cm)"], rows)
-            + f"\n\nOverrides: {args.overrides or 'none'}.\n")  # fmt: skip
+        rows.append(
+            [name, f"{np.median(track):.1f}", f"{np.mean(track):.1f}", f"{result.metrics['ate_rmse_m'] * 100:.2f}"]
+        )
+    body = (
+        f"{dataset.name}, {len(dataset)} frames at {k.width}x{k.height}, same process:\n\n"
+        + markdown_table(["method", "tracking ms/frame (median)", "mean", "ATE RMSE (cm)"], rows)
+        + f"\n\nOverrides: {args.overrides or 'none'}.\n"
+    )
     print(body)
     if not args.no_append:
         append_section(f"Open3D odometry side by side: {dataset.name} {k.width}x{k.height}", body)

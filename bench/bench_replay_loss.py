@@ -54,13 +54,33 @@ def replay(bag: Path, transport: str, downscale: float, preset: str, semantics: 
     env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
     env.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
     node = subprocess.Popen(
-        [sys.executable, "-m", "sgs_slam_ros.slam_node", "--transport", transport, "--ros-args",
-         "-p", f"preset:={preset}", "-p", f"use_semantics:={str(semantics).lower()}", "-p", f"downscale:={downscale}",
-         *(a for r in REMAPS for a in ("-r", r))],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )  # fmt: skip
-    player = subprocess.run([sys.executable, "-m", "sgs_slam_ros.bag_player", str(bag), "--transport", transport,
-                             "--wait", "120"], env=env, capture_output=True, text=True, check=False)  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "sgs_slam_ros.slam_node",
+            "--transport",
+            transport,
+            "--ros-args",
+            "-p",
+            f"preset:={preset}",
+            "-p",
+            f"use_semantics:={str(semantics).lower()}",
+            "-p",
+            f"downscale:={downscale}",
+            *(a for r in REMAPS for a in ("-r", r)),
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    player = subprocess.run(
+        [sys.executable, "-m", "sgs_slam_ros.bag_player", str(bag), "--transport", transport, "--wait", "120"],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     time.sleep(3.0)  # the last frames' callbacks
     node.send_signal(signal.SIGINT)
     log = node.communicate(timeout=300)[0]
@@ -88,16 +108,30 @@ def main() -> int:
         c = replay(args.bag, transport, args.downscale, args.preset, args.semantics)
         transport_lost = c["frames_lost"] - in_bag
         uncounted = c["sent"] - c["frames_in"] - transport_lost  # lost after the last frame that arrived
-        rows.append([transport, c["sent"], c["frames_in"], c["frames_lost"], in_bag, transport_lost, uncounted,
-                     c["frames_tracked"], c["frames_dropped"], c["frames_rejected"]])  # fmt: skip
+        rows.append(
+            [
+                transport,
+                c["sent"],
+                c["frames_in"],
+                c["frames_lost"],
+                in_bag,
+                transport_lost,
+                uncounted,
+                c["frames_tracked"],
+                c["frames_dropped"],
+                c["frames_rejected"],
+            ]
+        )
         print(" | ".join(map(str, rows[-1])), flush=True)
     header = ["transport", "sent", "frames_in", "frames_lost", "of them gaps in the bag", "lost in transport",
               "uncounted", "frames_tracked", "frames_dropped", "frames_rejected"]  # fmt: skip
     table = markdown_table(header, rows)
     print(table)
     if not args.no_append:
-        note = (f"`bag_player {args.bag.name}` at its recorded rate into `slam_node` (live, preset {args.preset}, "
-                f"downscale {args.downscale:g}), two processes; the node's final counts")  # fmt: skip
+        note = (
+            f"`bag_player {args.bag.name}` at its recorded rate into `slam_node` (live, preset {args.preset}, "
+            f"downscale {args.downscale:g}), two processes; the node's final counts"
+        )
         append_section("Replay: bag_player into slam_node, frames lost in transport", note + "\n\n" + table)
     return 0
 

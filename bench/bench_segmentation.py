@@ -49,8 +49,10 @@ def main() -> int:
     table = markdown_table(["size", "median ms", "best ms", "frames/s (median)"], rows)
     print(table)
     if not args.no_append:
-        note = (f"SegFormer-b0 (ADE20K, 150 classes -> NYU40), {args.frames} frames per size on {args.device} "
-                f"({torch.get_num_threads()} torch threads), random weights (the pretrained model's cost)")  # fmt: skip
+        note = (
+            f"SegFormer-b0 (ADE20K, 150 classes -> NYU40), {args.frames} frames per size on {args.device} "
+            f"({torch.get_num_threads()} torch threads), random weights (the pretrained model's cost)"
+        )
         append_section("Segmentation: segmentation_node's model per frame", note + "\n\n" + table)
     return 0
 

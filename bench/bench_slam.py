@@ -72,16 +72,27 @@ def summary_rows(result: RunResult, dataset: Dataset, preset: str) -> list[list[
     realtime = (
         f"{m['realtime_hz']:.0f} Hz: {m['frames_tracked']}/{m['frames_in']}" if m.get("realtime_hz") else "lockstep"
     )
-    return [[
-        f"{dataset.name} {m.get('frames_in', len(steps))} fr", f"{k.width}x{k.height}", preset, str(result.slam.device),
-        realtime,
-        f"{np.median(track):.0f} / {_percentile(track, 95):.0f}",
-        f"{m['map_ms_per_frame']:.0f}", f"{np.median(total):.0f}", f"{m['fps']:.2f}",
-        f"{np.mean(iters):.1f}" if iters else "-", f"{m['num_gaussians']:,}",
-        f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f}", gpu,
-        cm("ate_rmse_m"), f"{m['psnr_db']:.2f}" if m.get("psnr_db") is not None else "-", cm("depth_l1_m"),
-        f"{m['miou'] * 100:.1f}" if m.get("miou") is not None else "-",
-    ]]  # fmt: skip
+    return [
+        [
+            f"{dataset.name} {m.get('frames_in', len(steps))} fr",
+            f"{k.width}x{k.height}",
+            preset,
+            str(result.slam.device),
+            realtime,
+            f"{np.median(track):.0f} / {_percentile(track, 95):.0f}",
+            f"{m['map_ms_per_frame']:.0f}",
+            f"{np.median(total):.0f}",
+            f"{m['fps']:.2f}",
+            f"{np.mean(iters):.1f}" if iters else "-",
+            f"{m['num_gaussians']:,}",
+            f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f}",
+            gpu,
+            cm("ate_rmse_m"),
+            f"{m['psnr_db']:.2f}" if m.get("psnr_db") is not None else "-",
+            cm("depth_l1_m"),
+            f"{m['miou'] * 100:.1f}" if m.get("miou") is not None else "-",
+        ]
+    ]
 
 
 SUMMARY_HEADERS = ["input", "size", "preset", "device", "mode: tracked/in", "track ms (median / p95)", "map ms (mean)",
@@ -94,8 +105,11 @@ def timing_plot(path: Path, result: RunResult, title: str) -> None:
     steps = result.steps
     track = np.array([s.track.time_s * 1e3 for s in steps])
     mapping = np.array([s.map.time_s * 1e3 for s in steps])
-    times = [Series("tracking", track, (200, 90, 30)), Series("mapping", mapping, (40, 140, 40)),
-             Series("total", track + mapping, (0, 0, 0))]  # fmt: skip
+    times = [
+        Series("tracking", track, (200, 90, 30)),
+        Series("mapping", mapping, (40, 140, 40)),
+        Series("total", track + mapping, (0, 0, 0)),
+    ]
     count = [Series("Gaussians (k)", np.array([s.num_gaussians / 1e3 for s in steps]), (30, 30, 200))]
     save_panels(path, [line_panel(times, f"time per frame, {title}", "ms"), line_panel(count, "map size", "k")])
 
@@ -150,15 +164,32 @@ def _label_row(averages: list, label: str, frames: int) -> ProfileRow | None:
 def profile_table(rows: list[ProfileRow], wall_ms: float, device: str) -> str:
     """Markdown table: label, host ms/frame, share of the profiled wall time, device ms, calls."""
     labelled = sum(r.host_ms for r in rows)  # the labels do not nest
-    body = [[r.label, f"{r.host_ms:.2f}", f"{100 * r.host_ms / wall_ms:.1f}",
-             f"{r.device_ms:.2f}" if device == "cuda" else "-", r.calls] for r in rows]  # fmt: skip
-    body.append(["(unlabelled: Python, guard, bookkeeping)", f"{wall_ms - labelled:.2f}",
-                 f"{100 * (wall_ms - labelled) / wall_ms:.1f}", "-", "-"])  # fmt: skip
+    body = [
+        [
+            r.label,
+            f"{r.host_ms:.2f}",
+            f"{100 * r.host_ms / wall_ms:.1f}",
+            f"{r.device_ms:.2f}" if device == "cuda" else "-",
+            r.calls,
+        ]
+        for r in rows
+    ]
+    body.append(
+        [
+            "(unlabelled: Python, guard, bookkeeping)",
+            f"{wall_ms - labelled:.2f}",
+            f"{100 * (wall_ms - labelled) / wall_ms:.1f}",
+            "-",
+            "-",
+        ]
+    )
     table = markdown_table(["label", "host ms/frame", "% of frame", "device ms/frame", "calls/frame"], body)
     if device == "cuda":
         busy = sum(r.device_ms for r in rows)
-        table += (f"\n\nDevice time under the labels: {busy:.1f} ms of {wall_ms:.1f} ms per frame "
-                  f"({100 * busy / wall_ms:.0f} % busy).")  # fmt: skip
+        table += (
+            f"\n\nDevice time under the labels: {busy:.1f} ms of {wall_ms:.1f} ms per frame "
+            f"({100 * busy / wall_ms:.0f} % busy)."
+        )
     return table
 
 
@@ -174,8 +205,14 @@ def main() -> None:
     parser.add_argument("--out", type=Path, help="run folder (default: a temporary folder)")
     parser.add_argument("--profile", type=int, default=0, metavar="K", help="profile K frames in a second pass")
     parser.add_argument("--profile-warmup", type=int, default=20, help="unprofiled frames before the profiled ones")
-    parser.add_argument("--realtime", nargs="?", const="stamps", type=camera_rate, metavar="HZ",
-                        help="replay as a live camera (frames at their stamps, or HZ); default: lockstep")  # fmt: skip
+    parser.add_argument(
+        "--realtime",
+        nargs="?",
+        const="stamps",
+        type=camera_rate,
+        metavar="HZ",
+        help="replay as a live camera (frames at their stamps, or HZ); default: lockstep",
+    )
     parser.add_argument("--no-append", action="store_true", help="print only, do not append to BENCHMARKS.md")
     args = parser.parse_args()
 
@@ -188,8 +225,9 @@ def main() -> None:
     k = dataset.intrinsics
     print(f"{dataset.name}: {len(dataset)} frames at {k.width}x{k.height}, preset {preset}", file=sys.stderr)
     realtime = None if args.realtime is None else RealtimeOptions(None if args.realtime == "stamps" else args.realtime)
-    result = run_offline(dataset, config, out, overwrite=True, provenance={"input": str(data), "bench": True},
-                         realtime=realtime)  # fmt: skip
+    result = run_offline(
+        dataset, config, out, overwrite=True, provenance={"input": str(data), "bench": True}, realtime=realtime
+    )
     mode = "" if realtime is None else f", realtime {args.realtime}"
     title = f"{dataset.name} {k.width}x{k.height}, {preset}, {result.slam.device}{mode}"
     timing_plot(out / "timing.png", result, title)

@@ -70,8 +70,15 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
     frames = tiny_frames(scene)  # depth in millimetres, as a 16UC1 camera delivers it
     ctx = new_context()
     overrides = [f"tracking.adam.iterations={iterations}", f"mapping.iterations={iterations}"]
-    params = node_params(overrides=overrides, lockstep=False, input_qos="best_effort", render_rate_hz=2.0,
-                         points_rate_hz=1.0, gaussians_rate_hz=0.5, map_path=str(scene / "m.sgsmap"))  # fmt: skip
+    params = node_params(
+        overrides=overrides,
+        lockstep=False,
+        input_qos="best_effort",
+        render_rate_hz=2.0,
+        points_rate_hz=1.0,
+        gaussians_rate_hz=0.5,
+        map_path=str(scene / "m.sgsmap"),
+    )
     nodes = build_slam_nodes(context=ctx, parameter_overrides=params)
     feeder = Feeder(ctx)
     spinner = Spinner(ctx, [*nodes, feeder])
@@ -85,10 +92,24 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
             st, slam, a = tracking.pipeline.stats, tracking.pipeline.slam, tracking.assembler
             drops = st.dropped_frames + a.colour_dropped + a.frames_rejected  # as /diagnostics counts them
             held = footprint(slam)
-            samples.append(Sample(published, time.monotonic() - start, rss_mb(), held.gaussians, st.tracked,
-                                  held.keyframes, held.keyframe_bytes / 2**20, drops, st.errors))  # fmt: skip
-            print(f"{published:6d} frames  {samples[-1].rss_mb:7.1f} MB  {slam.num_gaussians:6d} G  "
-                  f"{st.tracked:5d} tracked  {len(slam.keyframes):4d} keyframes", flush=True)  # fmt: skip
+            samples.append(
+                Sample(
+                    published,
+                    time.monotonic() - start,
+                    rss_mb(),
+                    held.gaussians,
+                    st.tracked,
+                    held.keyframes,
+                    held.keyframe_bytes / 2**20,
+                    drops,
+                    st.errors,
+                )
+            )
+            print(
+                f"{published:6d} frames  {samples[-1].rss_mb:7.1f} MB  {slam.num_gaussians:6d} G  "
+                f"{st.tracked:5d} tracked  {len(slam.keyframes):4d} keyframes",
+                flush=True,
+            )
 
         sample(0)
         for i, frame in stream(frames, count, rate_hz):
@@ -108,25 +129,49 @@ def report(samples: list[Sample], count: int, rate_hz: float, iterations: int, s
     """Markdown: the plot, a table every 10 % of the stream, and the growth after the first tenth."""
     every = samples[1].frames - samples[0].frames
     panels = [
-        line_panel([Series("resident set", np.array([s.rss_mb for s in samples]), (200, 90, 0))],
-                   "slam_node memory", "MB", x_label="frames published", x_step=every),
-        line_panel([Series("Gaussians", np.array([s.gaussians / 1e3 for s in samples]), (40, 140, 40)),
-                    Series("keyframes / 10", np.array([s.keyframes / 10 for s in samples]), (30, 30, 200)),
-                    Series("frames tracked / 100", np.array([s.tracked / 100 for s in samples]), (150, 150, 150))],
-                   "map size", "thousands of Gaussians", x_label="frames published", x_step=every),
-    ]  # fmt: skip
+        line_panel(
+            [Series("resident set", np.array([s.rss_mb for s in samples]), (200, 90, 0))],
+            "slam_node memory",
+            "MB",
+            x_label="frames published",
+            x_step=every,
+        ),
+        line_panel(
+            [
+                Series("Gaussians", np.array([s.gaussians / 1e3 for s in samples]), (40, 140, 40)),
+                Series("keyframes / 10", np.array([s.keyframes / 10 for s in samples]), (30, 30, 200)),
+                Series("frames tracked / 100", np.array([s.tracked / 100 for s in samples]), (150, 150, 150)),
+            ],
+            "map size",
+            "thousands of Gaussians",
+            x_label="frames published",
+            x_step=every,
+        ),
+    ]
     plot = RESULTS / f"soak_slam_node_{size}.png"
     plot.parent.mkdir(parents=True, exist_ok=True)
     save_panels(plot, panels)
     picked = sorted({*range(0, len(samples), max(1, len(samples) // 10)), len(samples) - 1})
-    rows = [[f"{s.frames:,}", f"{s.elapsed_s:.0f}", f"{s.rss_mb:.0f}", f"{s.gaussians:,}", f"{s.tracked:,}",
-             s.keyframes, f"{s.keyframe_mb:.1f}", f"{s.drops:,}", s.errors]
-            for s in (samples[i] for i in picked)]  # fmt: skip
+    rows = [
+        [
+            f"{s.frames:,}",
+            f"{s.elapsed_s:.0f}",
+            f"{s.rss_mb:.0f}",
+            f"{s.gaussians:,}",
+            f"{s.tracked:,}",
+            s.keyframes,
+            f"{s.keyframe_mb:.1f}",
+            f"{s.drops:,}",
+            s.errors,
+        ]
+        for s in (samples[i] for i in picked)
+    ]
     tenth = samples[max(1, len(samples) // 10)]
     last = samples[-1]
     per_k = (last.rss_mb - tenth.rss_mb) / max((last.frames - tenth.frames) / 1000, 1e-9)
-    table = markdown_table(["frames published", "s", "RSS MB", "Gaussians", "tracked", "keyframes", "keyframe MB",
-                            "drops", "errors"], rows)  # fmt: skip
+    table = markdown_table(
+        ["frames published", "s", "RSS MB", "Gaussians", "tracked", "keyframes", "keyframe MB", "drops", "errors"], rows
+    )
     return (
         f"slam_node in live mode (best-effort input, outputs on) fed {count:,} frames of a synthetic scene "
         f"({size}, {loop} frames back and forth) at {rate_hz:g} Hz; tracking and mapping {iterations} iterations. "

@@ -135,11 +135,26 @@ def same_map_table(side: SideBySide, truth: list, baseline: str) -> str:
     rows = []
     for name, log in side.logs.items():
         med = float(np.median(log.ms))
-        rows.append([name, f"{med:.1f}", f"{np.percentile(log.ms, 95):.1f}", f"{med / base:.2f}",
-                     f"{np.mean(log.iterations):.1f}", f"{np.mean(log.renders):.1f}",
-                     f"{_error_mm(log.w2c, truth):.2f}"])  # fmt: skip
-    headers = ["tracker", "ms/frame (median)", "p95", f"ratio to {baseline}", "iterations/frame", "renders/frame",
-               "motion error vs ground truth (median mm/frame)"]  # fmt: skip
+        rows.append(
+            [
+                name,
+                f"{med:.1f}",
+                f"{np.percentile(log.ms, 95):.1f}",
+                f"{med / base:.2f}",
+                f"{np.mean(log.iterations):.1f}",
+                f"{np.mean(log.renders):.1f}",
+                f"{_error_mm(log.w2c, truth):.2f}",
+            ]
+        )
+    headers = [
+        "tracker",
+        "ms/frame (median)",
+        "p95",
+        f"ratio to {baseline}",
+        "iterations/frame",
+        "renders/frame",
+        "motion error vs ground truth (median mm/frame)",
+    ]
     return markdown_table(headers, rows)
 
 
@@ -157,8 +172,15 @@ def own_runs_table(dataset: Dataset, configs: dict[str, SlamConfig], seeds: list
             if m.get("miou") is not None:
                 mious.append(m["miou"] * 100)
             print(f"{name} seed {seed}: ATE {ates[-1]:.2f} cm, tracking {track_ms[-1]:.0f} ms/frame", file=sys.stderr)
-        rows.append([name, " / ".join(f"{a:.2f}" for a in ates), f"{np.mean(ates):.2f}", f"{np.mean(track_ms):.0f}",
-                     f"{np.mean(mious):.1f}" if mious else "-"])  # fmt: skip
+        rows.append(
+            [
+                name,
+                " / ".join(f"{a:.2f}" for a in ates),
+                f"{np.mean(ates):.2f}",
+                f"{np.mean(track_ms):.0f}",
+                f"{np.mean(mious):.1f}" if mious else "-",
+            ]
+        )
     headers = ["tracker", "ATE RMSE per seed (cm)", "mean ATE (cm)", "tracking ms/frame (mean)", "mIoU %"]
     return f"Seeds {seeds}:\n\n" + markdown_table(headers, rows)
 
@@ -169,8 +191,12 @@ def main() -> None:
     parser.add_argument("--preset", help="config preset (default: chosen from the dataset)")
     parser.add_argument("--max-frames", type=int, help="process at most N frames")
     parser.add_argument("--downscale", type=float, help="divide the image size by F (room default: 2 = 160x120)")
-    parser.add_argument("--trackers", nargs="+", default=["adam", "gauss_newton"],
-                        help="METHOD[:KEY=VALUE;...]: a tracking.method and overrides under tracking.")  # fmt: skip
+    parser.add_argument(
+        "--trackers",
+        nargs="+",
+        default=["adam", "gauss_newton"],
+        help="METHOD[:KEY=VALUE;...]: a tracking.method and overrides under tracking.",
+    )
     parser.add_argument("--driver", help="the tracker whose poses drive pass 1 (default: the preset's)")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0], help="seeds of pass 2's runs")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
@@ -189,8 +215,10 @@ def main() -> None:
     configs = {spec: tracker_config(config, spec, preset, args.overrides) for spec in args.trackers}
     trackers = {spec: build_tracker(cfg.tracking, build_kernels(cfg.render, "cpu")) for spec, cfg in configs.items()}
     side, truth = same_map_pass(dataset, config, trackers, driver if driver in trackers else args.trackers[0])
-    body = (f"Pass 1: every tracker on the same {len(truth)} frames and maps (driven by `{driver}`), "
-            f"same start pose:\n\n" + same_map_table(side, truth, args.trackers[0]) + "\n")  # fmt: skip
+    body = (
+        f"Pass 1: every tracker on the same {len(truth)} frames and maps (driven by `{driver}`), "
+        f"same start pose:\n\n" + same_map_table(side, truth, args.trackers[0]) + "\n"
+    )
     if not args.skip_runs:
         body += "\nPass 2: each tracker's own lockstep run. " + own_runs_table(
             dataset, config, args.trackers, args.seeds

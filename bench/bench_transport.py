@@ -57,11 +57,16 @@ def run_cell(cell: Cell, frames: int, rate: float, busy: int, domain: int, profi
     shm = env | {"FASTRTPS_DEFAULT_PROFILES_FILE": str(profile)}
     me = [sys.executable, "-m", "sgs_slam_ros.transport_probe"]
     timeout = frames / rate + 40.0
-    sub = subprocess.Popen([*me, "sub", "--qos", cell.subscriber, "--frames", str(frames),
-                            "--busy", str(busy), "--depth", str(depth)], env=shm if cell.transport == "shm" else env,
-                           stdout=subprocess.PIPE, text=True)  # fmt: skip
-    pub = subprocess.Popen([*me, "pub", "--qos", cell.publisher, "--frames", str(frames),
-                            "--rate", str(rate)], env=env if cell.transport == "default" else shm)  # fmt: skip
+    sub = subprocess.Popen(
+        [*me, "sub", "--qos", cell.subscriber, "--frames", str(frames), "--busy", str(busy), "--depth", str(depth)],
+        env=shm if cell.transport == "shm" else env,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    pub = subprocess.Popen(
+        [*me, "pub", "--qos", cell.publisher, "--frames", str(frames), "--rate", str(rate)],
+        env=env if cell.transport == "default" else shm,
+    )
     out, _ = sub.communicate(timeout=timeout)
     pub.wait(timeout=30)
     return json.loads(out.strip().splitlines()[-1])
@@ -84,16 +89,33 @@ def main() -> int:
         for busy in sorted({0, args.busy}):
             r = run_cell(cell, args.frames, args.rate, busy, 60 + i, args.profile, args.depth)
             got, lost = r["received"], r["lost_by_gaps"]
-            rows.append([cell.publisher, cell.subscriber, cell.transport, str(busy),
-                         *(f"{got[t]} ({lost[t]})" for t in (*TOPICS, INFO))])  # fmt: skip
+            rows.append(
+                [
+                    cell.publisher,
+                    cell.subscriber,
+                    cell.transport,
+                    str(busy),
+                    *(f"{got[t]} ({lost[t]})" for t in (*TOPICS, INFO)),
+                ]
+            )
             print(" | ".join(rows[-1]), flush=True)
-    header = ["writer (depth 100)", f"reader (input_qos, depth {args.depth})", "transport", "busy threads",
-              "colour (lost)", "depth (lost)", "labels (lost)", "camera_info (lost)"]  # fmt: skip
+    header = [
+        "writer (depth 100)",
+        f"reader (input_qos, depth {args.depth})",
+        "transport",
+        "busy threads",
+        "colour (lost)",
+        "depth (lost)",
+        "labels (lost)",
+        "camera_info (lost)",
+    ]
     table = markdown_table(header, rows)
     print(table)
     if not args.no_append:
-        note = (f"{args.frames} frames of 640x480 rgb8 + 16UC1 depth + 16UC1 labels + CameraInfo at {args.rate:g} Hz "
-                "between two processes; received (frames the stamp gaps count as lost)")  # fmt: skip
+        note = (
+            f"{args.frames} frames of 640x480 rgb8 + 16UC1 depth + 16UC1 labels + CameraInfo at {args.rate:g} Hz "
+            "between two processes; received (frames the stamp gaps count as lost)"
+        )
         append_section(f"Transport: 640x480 RGB-D + labels at {args.rate:g} Hz, two processes", note + "\n\n" + table)
     return 0
 

@@ -35,8 +35,14 @@ class Series:
         return (r / 255, g / 255, b / 255)
 
 
-def line_chart(series: list[Series], title: str, y_label: str, size: tuple[int, int] = (720, 300),
-               x_label: str = "frame", x_step: float = 1) -> Figure:  # fmt: skip
+def line_chart(
+    series: list[Series],
+    title: str,
+    y_label: str,
+    size: tuple[int, int] = (720, 300),
+    x_label: str = "frame",
+    x_step: float = 1,
+) -> Figure:
     """A figure of ``size`` (W, H) pixels: one line per series (value i at x = i * x_step), y from 0."""
     fig = new_figure(size[0] / _DPI, size[1] / _DPI, dpi=_DPI)
     ax = fig.add_subplot()

@@ -94,8 +94,15 @@ class CompactFrame:
         """Compress a frame (depth beyond 13.1 m becomes invalid)."""
         units = np.round(frame.depth * DEPTH_UNITS_PER_M)
         depth = np.where(units <= 65535, units, 0).astype(np.uint16)
-        return CompactFrame(frame.index, frame.stamp_ns, frame.intrinsics, frame.rgb.copy(), depth,
-                            None if frame.labels is None else compact_labels(frame.labels), w2c.copy())  # fmt: skip
+        return CompactFrame(
+            frame.index,
+            frame.stamp_ns,
+            frame.intrinsics,
+            frame.rgb.copy(),
+            depth,
+            None if frame.labels is None else compact_labels(frame.labels),
+            w2c.copy(),
+        )
 
     @property
     def depth_m(self) -> np.ndarray:  # [H, W] float32

@@ -266,8 +266,9 @@ def main(args: list[str] | None = None) -> int:
 
     with stop_on_signals(on_signal):
         try:
-            player = BagPlayer(opts.bag, opts.rate, opts.loop, opts.start, opts.lockstep, opts.pose_topic,
-                               opts.timeout, opts.clock)  # fmt: skip
+            player = BagPlayer(
+                opts.bag, opts.rate, opts.loop, opts.start, opts.lockstep, opts.pose_topic, opts.timeout, opts.clock
+            )
             if stopped.is_set():  # the signal came while the bag was being indexed
                 return 0
             player.get_logger().info(f"transport: {transport}")

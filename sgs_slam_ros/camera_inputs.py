@@ -51,9 +51,14 @@ class CameraInputs:
         log = self.logger.warn
         self.log, self.activity = log, activity
         self.assembler = FrameAssembler(
-            params["use_semantics"], params["sync_queue_size"], round(params["sync_slop_s"] * 1e9),
-            params["depth_scale"], on_frame, log, params["downscale"],
-        )  # fmt: skip
+            params["use_semantics"],
+            params["sync_queue_size"],
+            round(params["sync_slop_s"] * 1e9),
+            params["depth_scale"],
+            on_frame,
+            log,
+            params["downscale"],
+        )
         params.on_change["sync_slop_s"] = self.assembler.set_slop
         params.on_change["depth_scale"] = lambda v: setattr(self.assembler, "depth_scale", v)
         self.colour_rate = RateMeter()
@@ -157,8 +162,11 @@ class CameraInputs:
         def text(size: tuple[int, int] | None) -> str:
             return "n/a" if size is None else f"{size[0]}x{size[1]}"
 
-        return {"input_size": text(a.input_size), "processing_size": text(a.processing_size),
-                "downscale": f"{a.downscale:g}"}  # fmt: skip
+        return {
+            "input_size": text(a.input_size),
+            "processing_size": text(a.processing_size),
+            "downscale": f"{a.downscale:g}",
+        }
 
     def silent_names(self, silent: list[str]) -> str:
         """The topics of ``silent`` for /diagnostics ("none" when empty)."""

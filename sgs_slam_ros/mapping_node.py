@@ -113,8 +113,14 @@ class MappingNode(Node):
     # ------------------------------------------------------------------ standalone inputs
     def _subscribe_inputs(self, pipeline: SlamPipeline) -> None:
         self.activity = Activity(pipeline.idle)
-        self.camera = CameraInputs(self, self.params, self._on_frame, self.activity, {"pose": "tracking_node/pose"},
-                                   {"pose": "is tracking_node running?"})  # fmt: skip
+        self.camera = CameraInputs(
+            self,
+            self.params,
+            self._on_frame,
+            self.activity,
+            {"pose": "tracking_node/pose"},
+            {"pose": "is tracking_node running?"},
+        )
         self.create_subscription(PoseStamped, "tracking_node/pose", self._on_pose, output_qos(50))
 
     def _on_frame(self, frame: Frame) -> None:

@@ -32,8 +32,15 @@ def _header_from(fields: dict[str, Any]) -> Header:
 def image_msg(arr: np.ndarray, encoding: str, stamp_ns: int, frame_id: str) -> Image:
     """An Image (``data`` assigned as bytes: fast)."""
     f = image_fields(arr, encoding, stamp_ns, frame_id)
-    return Image(header=_header_from(f), height=f["height"], width=f["width"], encoding=f["encoding"],
-                 is_bigendian=f["is_bigendian"], step=f["step"], data=f["data"])  # fmt: skip
+    return Image(
+        header=_header_from(f),
+        height=f["height"],
+        width=f["width"],
+        encoding=f["encoding"],
+        is_bigendian=f["is_bigendian"],
+        step=f["step"],
+        data=f["data"],
+    )
 
 
 def camera_info_msg(k: Intrinsics, stamp_ns: int, frame_id: str) -> CameraInfo:

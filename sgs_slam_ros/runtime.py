@@ -77,8 +77,12 @@ def _transport(argv: Sequence[str]) -> str:
     """Apply the ``--transport`` option among the non-ROS arguments; returns what was done, in words."""
     prog = os.path.basename(argv[0]) if argv else "sgs_slam_ros"
     parser = argparse.ArgumentParser(prog=prog)
-    parser.add_argument("--transport", choices=TRANSPORTS, default="shm",
-                        help="DDS transport: shm (whole frames through shared memory) or default")  # fmt: skip
+    parser.add_argument(
+        "--transport",
+        choices=TRANSPORTS,
+        default="shm",
+        help="DDS transport: shm (whole frames through shared memory) or default",
+    )
     return apply_transport(parser.parse_args(remove_ros_args(list(argv))[1:]).transport)
 
 

@@ -22,9 +22,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "run.yaml; the best value of each metric is marked.",
     )
     p.add_argument("runs", type=Path, nargs="+", metavar="RUN", help="run folders written by sgs-slam run")
-    p.add_argument("--metrics", default=",".join(DEFAULT_METRICS), metavar="KEY,...",
-                   help=f"metrics.json keys to show (default: {','.join(DEFAULT_METRICS)}; "
-                   f"all: {','.join(metric_keys())})")  # fmt: skip
+    p.add_argument(
+        "--metrics",
+        default=",".join(DEFAULT_METRICS),
+        metavar="KEY,...",
+        help=f"metrics.json keys to show (default: {','.join(DEFAULT_METRICS)}; all: {','.join(metric_keys())})",
+    )
     p.add_argument("--sort", metavar="KEY", help="sort rows by this metric (ascending; runs without it last)")
     p.add_argument("--descending", action="store_true", help="sort from the largest value")
     p.add_argument("--format", dest="fmt", choices=["text", "markdown", "csv"], default="text", help="table format")

@@ -54,9 +54,14 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(DEMO_PRESET)
     k = dataset.intrinsics
     print(f"room: {len(dataset)} frames at {k.width}x{k.height}, preset {DEMO_PRESET}", file=sys.stderr)
-    provenance = {"input": str(args.data.resolve()), "format": "replica",
-                  "options": {"start": 0, "stride": 1, "max_frames": args.max_frames, "downscale": 2.0},
-                  "preset": DEMO_PRESET, "overrides": [], "command": "sgs-slam demo"}  # fmt: skip
+    provenance = {
+        "input": str(args.data.resolve()),
+        "format": "replica",
+        "options": {"start": 0, "stride": 1, "max_frames": args.max_frames, "downscale": 2.0},
+        "preset": DEMO_PRESET,
+        "overrides": [],
+        "command": "sgs-slam demo",
+    }
     result = run_offline(dataset, config, args.out, overwrite=True, provenance=provenance)
     print(format_table(result.metrics))
     print(f"run folder: {args.out} (renders/, trajectory.png, map.ply)")

@@ -39,18 +39,44 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     op.add_argument("--keep-label", nargs="+", type=parse_label, metavar="L", help="keep only these classes")
     op.add_argument("--move-label", nargs="+", type=parse_label, metavar="L", help="move/rotate these classes")
     op.add_argument("--recolor-label", nargs="+", type=parse_label, metavar="L", help="paint these classes")
-    p.add_argument("--translate", nargs=3, type=_FINITE, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
-                   help="translation in metres, map frame (with --move-label)")  # fmt: skip
-    p.add_argument("--rotate-deg", nargs=3, type=_FINITE, default=(0.0, 0.0, 0.0), metavar=("RX", "RY", "RZ"),
-                   help="rotation about the map's x, y, z axes in degrees, applied before the translation")  # fmt: skip
-    p.add_argument("--pivot", nargs=3, type=_FINITE, metavar=("X", "Y", "Z"),
-                   help="rotation centre in metres (default: the selection's centroid)")  # fmt: skip
+    p.add_argument(
+        "--translate",
+        nargs=3,
+        type=_FINITE,
+        default=(0.0, 0.0, 0.0),
+        metavar=("X", "Y", "Z"),
+        help="translation in metres, map frame (with --move-label)",
+    )
+    p.add_argument(
+        "--rotate-deg",
+        nargs=3,
+        type=_FINITE,
+        default=(0.0, 0.0, 0.0),
+        metavar=("RX", "RY", "RZ"),
+        help="rotation about the map's x, y, z axes in degrees, applied before the translation",
+    )
+    p.add_argument(
+        "--pivot",
+        nargs=3,
+        type=_FINITE,
+        metavar=("X", "Y", "Z"),
+        help="rotation centre in metres (default: the selection's centroid)",
+    )
     p.add_argument("--rgb", nargs=3, type=_UNIT, metavar=("R", "G", "B"), help="colour in [0, 1] (--recolor-label)")
     p.add_argument("--instance", type=_INSTANCE, help="only the K-th connected object of the classes (0 = largest)")
-    p.add_argument("--link", type=_LINK, default=0.05,
-                   help=f"distance in m joining Gaussians into one instance ({_LINK.bounds}; 0.05)")  # fmt: skip
-    p.add_argument("--box", nargs=6, type=_FINITE, metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
-                   help="only Gaussians inside this axis-aligned box (m)")  # fmt: skip
+    p.add_argument(
+        "--link",
+        type=_LINK,
+        default=0.05,
+        help=f"distance in m joining Gaussians into one instance ({_LINK.bounds}; 0.05)",
+    )
+    p.add_argument(
+        "--box",
+        nargs=6,
+        type=_FINITE,
+        metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+        help="only Gaussians inside this axis-aligned box (m)",
+    )
     p.add_argument("--no-lock", action="store_true", help="do not lock the edited classes in the output map")
     p.add_argument("--out", type=Path, required=True, help="output map (.sgsmap or .ply)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
@@ -60,8 +86,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def request_from_args(args: argparse.Namespace) -> EditRequest:
     """The edit the arguments describe."""
     box = None if args.box is None else (tuple(args.box[:3]), tuple(args.box[3:]))
-    given = {EditKind.REMOVE: args.remove_label, EditKind.KEEP: args.keep_label, EditKind.MOVE: args.move_label,
-             EditKind.RECOLOR: args.recolor_label}  # fmt: skip
+    given = {
+        EditKind.REMOVE: args.remove_label,
+        EditKind.KEEP: args.keep_label,
+        EditKind.MOVE: args.move_label,
+        EditKind.RECOLOR: args.recolor_label,
+    }
     kind, labels = next((k, v) for k, v in given.items() if v)  # argparse requires exactly one
     selection = Selection(tuple(labels), box, args.instance, args.link)
     if kind is not EditKind.MOVE and (any(args.translate) or any(args.rotate_deg) or args.pivot):
@@ -96,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{verb[record.kind]} {record.count} Gaussians of {names}; {record.before} -> {record.after} in {args.out}")
     if record.transform is not None:
         t = record.transform[:3, 3]
-        print(f"  about pivot {tuple(round(v, 4) for v in record.pivot)}; world transform translation "
-              f"[{t[0]:.4f}, {t[1]:.4f}, {t[2]:.4f}] m")  # fmt: skip
+        print(
+            f"  about pivot {tuple(round(v, 4) for v in record.pivot)}; world transform translation "
+            f"[{t[0]:.4f}, {t[1]:.4f}, {t[2]:.4f}] m"
+        )
     return 0

@@ -64,8 +64,16 @@ def run(args: argparse.Namespace) -> int:
         )
     codec = SemanticCodec(config.semantic, saved.label_table)
     candidates = saved.seen_labels or saved.label_table.ids
-    metrics = evaluate(dataset, frame_ids, poses, saved.gaussians, codec, candidates, config.render,
-                       EvalOptions(config.eval_every, 0, None))  # fmt: skip
+    metrics = evaluate(
+        dataset,
+        frame_ids,
+        poses,
+        saved.gaussians,
+        codec,
+        candidates,
+        config.render,
+        EvalOptions(config.eval_every, 0, None),
+    )
     previous = _previous_metrics(args.run_dir / "metrics.json")
     metrics.update({k: previous[k] for k in _KEEP if k in previous})
     metrics["num_gaussians"] = len(saved.gaussians)

@@ -24,8 +24,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True, help="output .ply")
     p.add_argument("--points", action="store_true", help="a plain point cloud of the Gaussian centres")
     p.add_argument("--semantic", action="store_true", help="point colours from the class palette (with --points)")
-    p.add_argument("--min-opacity", type=_OPACITY, default=0.5,
-                   help=f"leave out fainter Gaussians (with --points; {_OPACITY.bounds}, 0.5)")  # fmt: skip
+    p.add_argument(
+        "--min-opacity",
+        type=_OPACITY,
+        default=0.5,
+        help=f"leave out fainter Gaussians (with --points; {_OPACITY.bounds}, 0.5)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.set_defaults(func=run)
 

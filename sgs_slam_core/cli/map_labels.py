@@ -26,11 +26,22 @@ def run(args: argparse.Namespace) -> int:
     rows = label_summary(saved.gaussians, saved.label_table)
     locked = set(saved.locked_labels)
     if args.json:
-        print(json.dumps([
-            {"id": i, "name": name, "gaussians": n, "bbox_min_m": [round(float(v), 4) for v in lo],
-             "bbox_max_m": [round(float(v), 4) for v in hi], "locked": i in locked}
-            for i, name, n, lo, hi in rows
-        ], indent=1))  # fmt: skip
+        print(
+            json.dumps(
+                [
+                    {
+                        "id": i,
+                        "name": name,
+                        "gaussians": n,
+                        "bbox_min_m": [round(float(v), 4) for v in lo],
+                        "bbox_max_m": [round(float(v), 4) for v in hi],
+                        "locked": i in locked,
+                    }
+                    for i, name, n, lo, hi in rows
+                ],
+                indent=1,
+            )
+        )
         return 0
     print(f"{len(saved.gaussians)} Gaussians, {len(rows)} classes ({args.map})")
     print(f"{'id':>4}  {'class':<22} {'gaussians':>9}  {'bbox min (m)':<26} {'bbox max (m)':<26}")

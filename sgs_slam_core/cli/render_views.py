@@ -37,17 +37,29 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--c2w", type=Path, help="text file with one 4x4 camera-to-world matrix (16 numbers)")
     where.add_argument("--trajectory", type=Path, help="TUM trajectory file (t tx ty tz qx qy qz qw) of cameras")
-    where.add_argument("--orbit", type=_VIEWS, nargs="?", const=36, metavar="N",
-                       help=f"N cameras circling the map, looking at its centre ({_VIEWS.bounds}; 36)")  # fmt: skip
+    where.add_argument(
+        "--orbit",
+        type=_VIEWS,
+        nargs="?",
+        const=36,
+        metavar="N",
+        help=f"N cameras circling the map, looking at its centre ({_VIEWS.bounds}; 36)",
+    )
     p.add_argument("--radius", type=_RADIUS, help=f"orbit radius in m ({_RADIUS.bounds}; default: from the map)")
-    p.add_argument("--elevation-deg", type=_ELEVATION, default=30.0,
-                   help=f"orbit camera elevation in degrees ({_ELEVATION.bounds}, default 30)")  # fmt: skip
+    p.add_argument(
+        "--elevation-deg",
+        type=_ELEVATION,
+        default=30.0,
+        help=f"orbit camera elevation in degrees ({_ELEVATION.bounds}, default 30)",
+    )
     p.add_argument("--out", type=Path, required=True, help="output folder (created; existing images are replaced)")
     p.add_argument("--semantic", action="store_true", help="also write the semantic colour images")
-    p.add_argument("--width", type=_SIDE,
-                   help=f"image width in px ({_SIDE.bounds}; default: the map's camera, else 640)")  # fmt: skip
-    p.add_argument("--height", type=_SIDE,
-                   help=f"image height in px ({_SIDE.bounds}; default: the map's camera, else 480)")  # fmt: skip
+    p.add_argument(
+        "--width", type=_SIDE, help=f"image width in px ({_SIDE.bounds}; default: the map's camera, else 640)"
+    )
+    p.add_argument(
+        "--height", type=_SIDE, help=f"image height in px ({_SIDE.bounds}; default: the map's camera, else 480)"
+    )
     p.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto", help="compute device")
     p.set_defaults(func=run)
 

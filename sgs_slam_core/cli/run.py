@@ -32,15 +32,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_dataset_arguments(p)
     p.add_argument("--preset", choices=list_presets(), help="config preset (default: chosen from the dataset)")
     p.add_argument("--config", type=Path, help="YAML file applied after the preset")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config value, e.g. --set tracking.adam.iterations=60 (repeatable)")  # fmt: skip
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config value, e.g. --set tracking.adam.iterations=60 (repeatable)",
+    )
     p.add_argument("--device", choices=["auto", "cpu", "cuda"], help="compute device (default: config)")
     p.add_argument("--out", type=Path, required=True, help="run folder (must be empty unless --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="replace a non-empty run folder")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--realtime", nargs="?", const="stamps", type=camera_rate, metavar="HZ",
-                   help="replay as a live camera: frames released at their recorded stamps (or HZ per second), "
-                   "dropped while tracking is busy; mapping runs beside it (default: lockstep)")  # fmt: skip
+    p.add_argument(
+        "--realtime",
+        nargs="?",
+        const="stamps",
+        type=camera_rate,
+        metavar="HZ",
+        help="replay as a live camera: frames released at their recorded stamps (or HZ per second), "
+        "dropped while tracking is busy; mapping runs beside it (default: lockstep)",
+    )
     add_viewer_arguments(p)
     p.set_defaults(func=run)
 
@@ -65,9 +77,14 @@ def add_dataset_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--stride", type=IntRange(1), default=1, help="use every K-th frame (>= 1)")
     p.add_argument("--start", type=IntRange(0), default=0, help="first frame (>= 0)")
     p.add_argument("--downscale", type=FloatRange(1.0, 64.0), default=1.0, help="divide the image size by F (1..64)")
-    p.add_argument("--topic", dest="topics", action="append", default=[], metavar="KEY=NAME",
-                   help=f"bag topic of a stream, KEY one of {', '.join(TOPIC_KEYS)} "
-                   "(bags recorded elsewhere; repeatable)")  # fmt: skip
+    p.add_argument(
+        "--topic",
+        dest="topics",
+        action="append",
+        default=[],
+        metavar="KEY=NAME",
+        help=f"bag topic of a stream, KEY one of {', '.join(TOPIC_KEYS)} (bags recorded elsewhere; repeatable)",
+    )
 
 
 def parse_topics(items: list[str]) -> dict[str, str]:
@@ -103,8 +120,11 @@ def run(args: argparse.Namespace) -> int:
     options = DatasetOptions(start=args.start, stride=args.stride, max_frames=args.max_frames, downscale=args.downscale)
     topics = parse_topics(args.topics)
     dataset = open_input(args.input, args.format, options, topics)
-    print(f"{dataset.name}: {len(dataset)} frames at {dataset.intrinsics.width}x{dataset.intrinsics.height}, "
-          f"preset {preset}, device {config.device}", file=sys.stderr)  # fmt: skip
+    print(
+        f"{dataset.name}: {len(dataset)} frames at {dataset.intrinsics.width}x{dataset.intrinsics.height}, "
+        f"preset {preset}, device {config.device}",
+        file=sys.stderr,
+    )
     provenance = {
         "input": str(args.input.resolve()),
         "format": dataset.name,
@@ -123,8 +143,16 @@ def run(args: argparse.Namespace) -> int:
     }
     realtime = None if args.realtime is None else RealtimeOptions(None if args.realtime == "stamps" else args.realtime)
     viewer = start_viewer(viewer_options)
-    result = run_offline(dataset, config, args.out, args.overwrite, provenance, show_progress=not args.quiet,
-                         realtime=realtime, viewer=viewer)  # fmt: skip
+    result = run_offline(
+        dataset,
+        config,
+        args.out,
+        args.overwrite,
+        provenance,
+        show_progress=not args.quiet,
+        realtime=realtime,
+        viewer=viewer,
+    )
     print(format_table(result.metrics))
     print(f"run folder: {args.out}")
     return 0

@@ -86,10 +86,21 @@ class GaussNewtonSettings:
             raise ConfigError(
                 f"tracking.gauss_newton.iterations must be 1 to 6 counts >= 0, got {list(self.iterations)}"
             )
-        _positive("tracking.gauss_newton", renders=self.renders, max_distance_m=self.max_distance_m,
-                  huber_m=self.huber_m, min_width=self.min_width, adam_lr_scale=self.adam_lr_scale)  # fmt: skip
-        _non_negative("tracking.gauss_newton", damping=self.damping, color_scale_m=self.color_scale_m,
-                      semantic_scale_m=self.semantic_scale_m, adam_steps=self.adam_steps)  # fmt: skip
+        _positive(
+            "tracking.gauss_newton",
+            renders=self.renders,
+            max_distance_m=self.max_distance_m,
+            huber_m=self.huber_m,
+            min_width=self.min_width,
+            adam_lr_scale=self.adam_lr_scale,
+        )
+        _non_negative(
+            "tracking.gauss_newton",
+            damping=self.damping,
+            color_scale_m=self.color_scale_m,
+            semantic_scale_m=self.semantic_scale_m,
+            adam_steps=self.adam_steps,
+        )
 
     @property
     def icp(self) -> IcpSettings:
@@ -126,8 +137,13 @@ class AdamTrackerSettings:
     stop_check_every: int = 0
 
     def __post_init__(self) -> None:
-        _positive("tracking.adam", iterations=self.iterations, lr_rotation=self.lr_rotation,
-                  lr_translation=self.lr_translation, stop_patience=self.stop_patience)  # fmt: skip
+        _positive(
+            "tracking.adam",
+            iterations=self.iterations,
+            lr_rotation=self.lr_rotation,
+            lr_translation=self.lr_translation,
+            stop_patience=self.stop_patience,
+        )
         _non_negative("tracking.adam", min_iterations=self.min_iterations, stop_check_every=self.stop_check_every)
         if not 0 <= self.stop_rel_improvement < 1:
             raise ConfigError(f"tracking.adam.stop_rel_improvement must be in [0, 1), got {self.stop_rel_improvement}")
@@ -158,8 +174,12 @@ class TrackingSettings:
     gauss_newton: GaussNewtonSettings = field(default_factory=GaussNewtonSettings)
 
     def __post_init__(self) -> None:
-        _non_negative("tracking", weight_depth=self.weight_depth, weight_color=self.weight_color,
-                      weight_semantic=self.weight_semantic)  # fmt: skip
+        _non_negative(
+            "tracking",
+            weight_depth=self.weight_depth,
+            weight_color=self.weight_color,
+            weight_semantic=self.weight_semantic,
+        )
         if not 0 <= self.sil_threshold < 1:
             raise ConfigError(f"tracking.sil_threshold must be in [0, 1), got {self.sil_threshold}")
 
@@ -273,13 +293,26 @@ class MappingSettings:
     refresh_labels: bool = True
 
     def __post_init__(self) -> None:
-        _non_negative("mapping", iterations=self.iterations, current_frame_steps=self.current_frame_steps,
-                      weight_depth=self.weight_depth,
-                      weight_color=self.weight_color, weight_semantic=self.weight_semantic)  # fmt: skip
-        _positive("mapping", every=self.every, lr_means=self.lr_means, lr_colors=self.lr_colors,
-                  lr_semantics=self.lr_semantics, lr_opacities=self.lr_opacities, lr_scales=self.lr_scales,
-                  lr_quats=self.lr_quats, scene_radius_depth_ratio=self.scene_radius_depth_ratio,
-                  prune_scale_ratio=self.prune_scale_ratio)  # fmt: skip
+        _non_negative(
+            "mapping",
+            iterations=self.iterations,
+            current_frame_steps=self.current_frame_steps,
+            weight_depth=self.weight_depth,
+            weight_color=self.weight_color,
+            weight_semantic=self.weight_semantic,
+        )
+        _positive(
+            "mapping",
+            every=self.every,
+            lr_means=self.lr_means,
+            lr_colors=self.lr_colors,
+            lr_semantics=self.lr_semantics,
+            lr_opacities=self.lr_opacities,
+            lr_scales=self.lr_scales,
+            lr_quats=self.lr_quats,
+            scene_radius_depth_ratio=self.scene_radius_depth_ratio,
+            prune_scale_ratio=self.prune_scale_ratio,
+        )
         if not 0 <= self.ssim_weight <= 1:
             raise ConfigError(f"mapping.ssim_weight must be in [0, 1], got {self.ssim_weight}")
 

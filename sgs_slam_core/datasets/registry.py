@@ -64,14 +64,20 @@ def _replica_preset(path: Path) -> str:
 BUILT_IN = (
     DatasetFormat("tum", "rgb.txt (TUM)", _is_tum, _no_streams(TumDataset, "TUM"), lambda _: "tum"),
     DatasetFormat(
-        "replica", "traj.txt + frames/ or results/ (Replica)", _is_replica, _no_streams(ReplicaDataset, "Replica"),
+        "replica",
+        "traj.txt + frames/ or results/ (Replica)",
+        _is_replica,
+        _no_streams(ReplicaDataset, "Replica"),
         _replica_preset,
     ),
     DatasetFormat(
-        "scannet", "color/ + pose/ (ScanNet)", _is_scannet, _no_streams(ScanNetDataset, "ScanNet"),
+        "scannet",
+        "color/ + pose/ (ScanNet)",
+        _is_scannet,
+        _no_streams(ScanNetDataset, "ScanNet"),
         lambda _: "scannet",
     ),
-)  # fmt: skip
+)
 
 
 @cache

@@ -108,8 +108,16 @@ def move(
     if not torch.isfinite(pose).all():
         raise EditError("translation and rotation must be finite")
     out = gaussians.transformed(pose.to(gaussians.means.dtype), mask)
-    record = EditRecord(EditKind.MOVE, _ids(gaussians, mask), int(mask.sum()), len(gaussians), len(out), mask,
-                        pose.numpy(), (float(c[0]), float(c[1]), float(c[2])))  # fmt: skip
+    record = EditRecord(
+        EditKind.MOVE,
+        _ids(gaussians, mask),
+        int(mask.sum()),
+        len(gaussians),
+        len(out),
+        mask,
+        pose.numpy(),
+        (float(c[0]), float(c[1]), float(c[2])),
+    )
     return out, record
 
 

@@ -155,10 +155,12 @@ def fit_floor_plane(
         return None
     normals, offsets = normals[keep], offsets[keep]
     sample = pts[rng.choice(len(pts), size=min(len(pts), settings.score_points), replace=False)]
-    counts = np.concatenate([
-        (np.abs(sample @ normals[i : i + 256].T + offsets[i : i + 256]) < settings.inlier_m).sum(axis=0)
-        for i in range(0, len(normals), 256)
-    ])  # fmt: skip
+    counts = np.concatenate(
+        [
+            (np.abs(sample @ normals[i : i + 256].T + offsets[i : i + 256]) < settings.inlier_m).sum(axis=0)
+            for i in range(0, len(normals), 256)
+        ]
+    )
     # the floor is the lowest well-supported plane (a table top may hold as many points)
     supported = counts >= max(settings.min_fraction * len(sample), 0.5 * counts.max(), 3)
     best = int(np.argmax(np.where(supported, offsets, -np.inf)))

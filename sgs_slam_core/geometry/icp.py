@@ -380,8 +380,9 @@ def align_device(
         raise ShapeError(f"source channels have {len(channels)} levels, settings ask for {len(iterations)}")
     init = pose = init_src_to_ref.to(device=depth.device, dtype=torch.float64)
     points = []
-    for i, ((d, k), ref, steps) in enumerate(zip(_scales(depth, intrinsics, len(iterations)), reference, iterations,
-                                                 strict=True)):  # fmt: skip
+    for i, ((d, k), ref, steps) in enumerate(
+        zip(_scales(depth, intrinsics, len(iterations)), reference, iterations, strict=True)
+    ):
         if k.shape != ref.intrinsics.shape:
             raise ShapeError(f"source level is {k.shape}, reference level {ref.intrinsics.shape}")
         points.append(vertex_map(d, k).reshape(-1, 3))
@@ -424,8 +425,9 @@ def _keep_better(
         cost = cost + _channel_cost(a, values, ref, s)
     worse = cost > cost0
     pose, r, inliers = torch.where(worse, init, pose), torch.where(worse, r0, r), torch.where(worse, inliers0, inliers)
-    return DeviceAlignment(pose, inliers.sum().double(), (r.double().square() * inliers).sum(),
-                           valid_source.sum().double())  # fmt: skip
+    return DeviceAlignment(
+        pose, inliers.sum().double(), (r.double().square() * inliers).sum(), valid_source.sum().double()
+    )
 
 
 def align_depth(

@@ -352,9 +352,15 @@ class SlamPipeline:
         """The map and run state as they are now, for outputs (consistent: the map is replaced whole)."""
         slam = self.slam
         last = slam.trajectory[-1] if slam.trajectory else None
-        return SlamSnapshot(slam.gaussians, slam.intrinsics, slam.codec, tuple(slam.label_candidates()),
-                            slam.frames_processed, None if last is None else last[1],
-                            None if last is None else last[2].copy())  # fmt: skip
+        return SlamSnapshot(
+            slam.gaussians,
+            slam.intrinsics,
+            slam.codec,
+            tuple(slam.label_candidates()),
+            slam.frames_processed,
+            None if last is None else last[1],
+            None if last is None else last[2].copy(),
+        )
 
     def render_view(self, snapshot: SlamSnapshot, c2w: np.ndarray) -> RenderOutput:  # c2w [4, 4]
         """Render ``snapshot``'s map from ``c2w`` with its intrinsics and the SLAM's render settings."""

@@ -150,5 +150,6 @@ def load_map(path: str | Path, device: torch.device | str = "cpu") -> MapFile:
     for _, pose in [*keyframes, *((i, p) for i, _, p in trajectory)]:
         if pose.shape != (4, 4):
             raise MapFileError(f"{path}: poses must be 4x4, found {pose.shape}")
-    return MapFile(gaussians, table, dict(data["config"]), k, keyframes, trajectory, seen, radius, locked, images,
-                   processed)  # fmt: skip
+    return MapFile(
+        gaussians, table, dict(data["config"]), k, keyframes, trajectory, seen, radius, locked, images, processed
+    )

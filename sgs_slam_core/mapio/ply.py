@@ -46,8 +46,28 @@ def write_splat_ply(path: str | Path, gaussians: GaussianMap, table: LabelTable 
     """Export in the 3DGS layout (plus semantic fields); written atomically."""
     g = gaussians.detach().to("cpu")
     n, s = len(g), g.num_semantic
-    fields = [(c, "<f4") for c in ("x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
-                                    "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")]  # fmt: skip
+    fields = [
+        (c, "<f4")
+        for c in (
+            "x",
+            "y",
+            "z",
+            "nx",
+            "ny",
+            "nz",
+            "f_dc_0",
+            "f_dc_1",
+            "f_dc_2",
+            "opacity",
+            "scale_0",
+            "scale_1",
+            "scale_2",
+            "rot_0",
+            "rot_1",
+            "rot_2",
+            "rot_3",
+        )
+    ]
     fields += [("label", "<i4"), ("birth_frame", "<i4"), ("raw_r", "<f4"), ("raw_g", "<f4"), ("raw_b", "<f4")]
     fields += [(f"sem_{i}", "<f4") for i in range(s)]
     data = np.zeros(n, dtype=np.dtype(fields))

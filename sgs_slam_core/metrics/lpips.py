@@ -29,12 +29,19 @@ class Lpips(nn.Module):
     def __init__(self) -> None:
         super().__init__()
         self.features = nn.Sequential(
-            nn.Conv2d(3, 64, 11, 4, 2), nn.ReLU(), nn.MaxPool2d(3, 2),
-            nn.Conv2d(64, 192, 5, padding=2), nn.ReLU(), nn.MaxPool2d(3, 2),
-            nn.Conv2d(192, 384, 3, padding=1), nn.ReLU(),
-            nn.Conv2d(384, 256, 3, padding=1), nn.ReLU(),
-            nn.Conv2d(256, 256, 3, padding=1), nn.ReLU(),
-        )  # fmt: skip
+            nn.Conv2d(3, 64, 11, 4, 2),
+            nn.ReLU(),
+            nn.MaxPool2d(3, 2),
+            nn.Conv2d(64, 192, 5, padding=2),
+            nn.ReLU(),
+            nn.MaxPool2d(3, 2),
+            nn.Conv2d(192, 384, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(384, 256, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(256, 256, 3, padding=1),
+            nn.ReLU(),
+        )
         self.taps = (1, 4, 7, 9, 11)  # outputs of relu1..relu5
         self.lins = nn.ModuleList(nn.Conv2d(c, 1, 1, bias=False) for c in _CHANNELS)
         self.register_buffer("shift", torch.tensor(_SHIFT).view(1, 3, 1, 1))
@@ -68,8 +75,16 @@ class Lpips(nn.Module):
 
 
 # what torch.load and load_state_dict raise for a file that is not the expected state dict
-_LOAD_ERRORS = (OSError, RuntimeError, KeyError, ValueError, AttributeError, EOFError, pickle.UnpicklingError,
-                zipfile.BadZipFile)  # fmt: skip
+_LOAD_ERRORS = (
+    OSError,
+    RuntimeError,
+    KeyError,
+    ValueError,
+    AttributeError,
+    EOFError,
+    pickle.UnpicklingError,
+    zipfile.BadZipFile,
+)
 
 
 def load_lpips(device: torch.device | str = "cpu") -> tuple[Lpips | None, str]:
@@ -81,6 +96,8 @@ def load_lpips(device: torch.device | str = "cpu") -> tuple[Lpips | None, str]:
         model = Lpips()
         model.load(torch.load(weights.alexnet, map_location="cpu"), torch.load(weights.linear, map_location="cpu"))
     except _LOAD_ERRORS as err:
-        return None, (f"LPIPS weights could not be loaded from {weights.alexnet} and {weights.linear}: "
-                      f"{type(err).__name__}: {err}")  # fmt: skip
+        return None, (
+            f"LPIPS weights could not be loaded from {weights.alexnet} and {weights.linear}: "
+            f"{type(err).__name__}: {err}"
+        )
     return model.eval().to(device), ""

@@ -61,8 +61,12 @@ def _info(run_yaml: dict[str, Any], metrics: dict[str, Any]) -> dict[str, str]:
     else:
         device_name = str(metrics.get("device", "-"))
     dataset = Path(str(run_yaml.get("input", ""))).name or "-"
-    return {"dataset": dataset, "preset": str(run_yaml.get("preset") or "-"), "commit": commit or "-",
-            "device": device_name or "-"}  # fmt: skip
+    return {
+        "dataset": dataset,
+        "preset": str(run_yaml.get("preset") or "-"),
+        "commit": commit or "-",
+        "device": device_name or "-",
+    }
 
 
 def load_run(path: Path, name: str | None = None) -> RunSummary:
@@ -92,8 +96,9 @@ def _best(runs: Sequence[RunSummary], key: str) -> float | None:
     return max(values) if key in _HIGHER_IS_BETTER else min(values)
 
 
-def format_comparison(runs: Sequence[RunSummary], keys: Sequence[str] = DEFAULT_METRICS,
-                      fmt: TableFormat = "text", info: bool = True) -> str:  # fmt: skip
+def format_comparison(
+    runs: Sequence[RunSummary], keys: Sequence[str] = DEFAULT_METRICS, fmt: TableFormat = "text", info: bool = True
+) -> str:
     """The table: one row per run; the best value of each metric marked (``*`` text, bold markdown)."""
     unknown = [k for k in keys if k not in _ROWS]
     if unknown:

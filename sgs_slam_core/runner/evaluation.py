@@ -111,16 +111,23 @@ class _FrameMetrics:
 
         labelled = self.cm.total > 0
         return {
-            "psnr_db": mean("psnr"), "psnr_masked_db": mean("psnr_masked"), "ssim": mean("ssim"),
-            "ms_ssim": mean("ms_ssim"), "depth_l1_m": mean("depth_l1"), "lpips": mean("lpips"),
-            "lpips_note": self.lpips_note or None, "miou": self.cm.miou() if labelled else None,
-            "miou_paper": mean("miou_paper"), "pixel_accuracy": self.cm.pixel_accuracy() if labelled else None,
+            "psnr_db": mean("psnr"),
+            "psnr_masked_db": mean("psnr_masked"),
+            "ssim": mean("ssim"),
+            "ms_ssim": mean("ms_ssim"),
+            "depth_l1_m": mean("depth_l1"),
+            "lpips": mean("lpips"),
+            "lpips_note": self.lpips_note or None,
+            "miou": self.cm.miou() if labelled else None,
+            "miou_paper": mean("miou_paper"),
+            "pixel_accuracy": self.cm.pixel_accuracy() if labelled else None,
             "per_class_iou": {self.codec.table.name_of(c): x for c, x in self.cm.iou().items()},
-        }  # fmt: skip
+        }
 
 
-def _plot(path: Path, poses: list[np.ndarray], est: np.ndarray, gt: np.ndarray, gt_stamps: np.ndarray,
-          ate_rmse: float | None) -> None:  # fmt: skip
+def _plot(
+    path: Path, poses: list[np.ndarray], est: np.ndarray, gt: np.ndarray, gt_stamps: np.ndarray, ate_rmse: float | None
+) -> None:
     """Trajectory plot; with ground truth the estimate is first aligned onto it."""
     if len(est) >= 3:
         res = ate(est, gt)
@@ -171,8 +178,14 @@ def evaluate(
         pred_labels = scores.add(frame, out)
         if t in examples and options.out_dir is not None:
             path = options.out_dir / "renders" / f"frame_{frame_indices[t]:06d}.png"
-            panel = RenderPanel(frame.rgb, out.color.cpu().numpy(), frame.depth, out.depth.cpu().numpy(),
-                                frame.labels if pred_labels is not None else None, pred_labels)  # fmt: skip
+            panel = RenderPanel(
+                frame.rgb,
+                out.color.cpu().numpy(),
+                frame.depth,
+                out.depth.cpu().numpy(),
+                frame.labels if pred_labels is not None else None,
+                pred_labels,
+            )
             title = f"frame {frame_indices[t]} (dataset index), rendered from the final map at the estimated pose"
             save_render_panels(path, panel, codec.table, title)
         if progress:

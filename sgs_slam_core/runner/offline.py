@@ -74,15 +74,23 @@ def _peak_memory_mb(device: torch.device) -> float:
 def _csv_row(step: StepResult, dataset_index: int) -> dict[str, Any]:
     tr, mp = step.track.result, step.map.stats
     return {
-        "frame": step.index, "dataset_index": dataset_index, "stamp_ns": step.track.stamp_ns,
-        "track_ms": round(step.track.time_s * 1e3, 2), "map_ms": round(step.map.time_s * 1e3, 2),
-        "track_iterations": tr.iterations if tr else 0, "track_converged": int(bool(tr and tr.converged)),
+        "frame": step.index,
+        "dataset_index": dataset_index,
+        "stamp_ns": step.track.stamp_ns,
+        "track_ms": round(step.track.time_s * 1e3, 2),
+        "map_ms": round(step.map.time_s * 1e3, 2),
+        "track_iterations": tr.iterations if tr else 0,
+        "track_converged": int(bool(tr and tr.converged)),
         "track_residual_cm": round(tr.depth_residual_m * 100, 4) if tr else "",
-        "map_iterations": mp.iterations if mp else 0, "added": step.map.added, "pruned": mp.pruned if mp else 0,
-        "gaussians": step.num_gaussians, "keyframe": int(step.map.keyframe),
+        "map_iterations": mp.iterations if mp else 0,
+        "added": step.map.added,
+        "pruned": mp.pruned if mp else 0,
+        "gaussians": step.num_gaussians,
+        "keyframe": int(step.map.keyframe),
         "window": len(step.map.window.keyframes) + 1 if step.map.window else 0,
-        "tracking_failed": int(step.track.failed), "reason": step.track.failure_reason or "",
-    }  # fmt: skip
+        "tracking_failed": int(step.track.failed),
+        "reason": step.track.failure_reason or "",
+    }
 
 
 @dataclass
@@ -147,8 +155,9 @@ def _process_realtime(
             observer.log_step(frame, step, slam)
 
     live = run_realtime(slam, dataset, hz, on_tracked, should_stop)
-    loop = _Loop(bad_frames=live.stats.bad_frames, first_skip=live.first_skip, interrupted=live.interrupted,
-                 live=live.stats)  # fmt: skip
+    loop = _Loop(
+        bad_frames=live.stats.bad_frames, first_skip=live.first_skip, interrupted=live.interrupted, live=live.stats
+    )
     for index, step, gt in zip(live.dataset_indices, live.steps, live.gt_c2w, strict=True):
         loop.add(index, step, gt)
     return loop
@@ -170,16 +179,30 @@ def _timing(loop: _Loop) -> dict[str, Any]:
     """Speed and frame counts: lockstep processes every frame; realtime reports what it kept up with."""
     frames, live = len(loop.frame_indices), loop.live
     if live is None:
-        return {"fps": frames / max(loop.track_s + loop.map_s, 1e-9), "track_ms_per_frame": 1e3 * loop.track_s / frames,
-                "map_ms_per_frame": 1e3 * loop.map_s / frames, "load_ms_per_frame": 1e3 * loop.load_s / frames,
-                "frames_in": frames + loop.bad_frames, "frames_tracked": frames, "frames_dropped": 0,
-                "frames_mapped": sum(s.map.stats is not None for s in loop.steps), "realtime_hz": None}  # fmt: skip
+        return {
+            "fps": frames / max(loop.track_s + loop.map_s, 1e-9),
+            "track_ms_per_frame": 1e3 * loop.track_s / frames,
+            "map_ms_per_frame": 1e3 * loop.map_s / frames,
+            "load_ms_per_frame": 1e3 * loop.load_s / frames,
+            "frames_in": frames + loop.bad_frames,
+            "frames_tracked": frames,
+            "frames_dropped": 0,
+            "frames_mapped": sum(s.map.stats is not None for s in loop.steps),
+            "realtime_hz": None,
+        }
     mapped = [s for s in loop.steps if s.map.stats is not None]
-    return {"fps": frames / max(live.wall_s, 1e-9), "track_ms_per_frame": 1e3 * loop.track_s / frames,
-            "map_ms_per_frame": 1e3 * sum(s.map.time_s for s in mapped) / max(len(mapped), 1),
-            "frames_in": live.frames_in, "frames_tracked": live.frames_tracked, "frames_dropped": live.frames_dropped,
-            "frames_mapped": live.frames_mapped, "realtime_hz": live.realtime_hz, "late_frames": live.late_frames,
-            "wall_s": live.wall_s}  # fmt: skip
+    return {
+        "fps": frames / max(live.wall_s, 1e-9),
+        "track_ms_per_frame": 1e3 * loop.track_s / frames,
+        "map_ms_per_frame": 1e3 * sum(s.map.time_s for s in mapped) / max(len(mapped), 1),
+        "frames_in": live.frames_in,
+        "frames_tracked": live.frames_tracked,
+        "frames_dropped": live.frames_dropped,
+        "frames_mapped": live.frames_mapped,
+        "realtime_hz": live.realtime_hz,
+        "late_frames": live.late_frames,
+        "wall_s": live.wall_s,
+    }
 
 
 def _stats(slam: Slam, loop: _Loop, config: SlamConfig) -> dict[str, Any]:
@@ -216,8 +239,10 @@ def _track_and_map(
         write_run_info(out / "run.yaml", provenance, "running")
         slam.prepare(lambda line: print(line, file=sys.stderr))  # compile before anything is timed
         label = "slam" if realtime is None else "slam (realtime)"
-        observers: list[Viewer] = [*([SlamProgress(len(dataset), label)] if show_progress else []),
-                                   *([viewer] if viewer else [])]  # fmt: skip
+        observers: list[Viewer] = [
+            *([SlamProgress(len(dataset), label)] if show_progress else []),
+            *([viewer] if viewer else []),
+        ]
         try:
             with StopRequest(_STOP_MESSAGE) as stop:
                 if realtime is None:
@@ -230,8 +255,10 @@ def _track_and_map(
         if not loop.frame_indices:
             if loop.interrupted:
                 raise KeyboardInterrupt  # interrupted before the first frame: nothing worth keeping
-            raise DatasetError(f"no frame could be processed: {loop.bad_frames} skipped, the first one: "
-                               f"{loop.first_skip or 'none was tracked'}")  # fmt: skip
+            raise DatasetError(
+                f"no frame could be processed: {loop.bad_frames} skipped, the first one: "
+                f"{loop.first_skip or 'none was tracked'}"
+            )
         _write_outputs(out, slam, loop)
     except OutputError as err:  # e.g. a full disk: keep the results written before it, and say which
         kept = [name for name in RESULT_FILES if (out / name).is_file()]
@@ -246,6 +273,14 @@ def _track_and_map(
         remove_run(out, created)  # aborted before its results were complete: leave nothing behind
         raise
     return slam, loop
+
+
+def _evaluate(dataset: Dataset, slam: Slam, loop: _Loop, config: SlamConfig, options: EvalOptions) -> dict[str, Any]:
+    """The run's metrics: trajectory against ground truth, and the map's renders against the input."""
+    candidates = slam.label_candidates()
+    return evaluate(
+        dataset, loop.frame_indices, loop.poses, slam.gaussians, slam.codec, candidates, config.render, options
+    )
 
 
 def run_offline(
@@ -278,16 +313,15 @@ def run_offline(
     stats = _stats(slam, loop, config)
     done = {"frames_processed": len(loop.frame_indices), "frames_in_input": len(dataset)}
     if loop.interrupted:
-        note = (f"interrupted by Ctrl-C after {len(loop.frame_indices)} of {len(dataset)} frames; the results "
-                f"hold those frames, not evaluated (run: sgs-slam eval {out})")  # fmt: skip
+        note = (
+            f"interrupted by Ctrl-C after {len(loop.frame_indices)} of {len(dataset)} frames; the results "
+            f"hold those frames, not evaluated (run: sgs-slam eval {out})"
+        )
         write_metrics(out / "metrics.json", {**stats, "interrupted": True})
         write_run_info(out / "run.yaml", provenance, "interrupted", note, **done)
         raise RunInterrupted(f"{note}; run folder: {out}")
     try:
-        metrics: dict[str, Any] = evaluate(
-            dataset, loop.frame_indices, loop.poses, slam.gaussians, slam.codec, slam.label_candidates(),
-            config.render, EvalOptions(config.eval_every, render_examples, out),
-        )  # fmt: skip
+        metrics = _evaluate(dataset, slam, loop, config, EvalOptions(config.eval_every, render_examples, out))
     except KeyboardInterrupt:
         note = f"evaluation interrupted by Ctrl-C; the results are complete (run: sgs-slam eval {out})"
         write_metrics(out / "metrics.json", {**stats, "evaluation": "interrupted"})

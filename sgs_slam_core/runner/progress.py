@@ -97,8 +97,14 @@ class SlamProgress:
     last frame, once three frames have ground truth.
     """
 
-    def __init__(self, total: int, label: str = "slam", stream: TextIO | None = None, ate_every: int = 10,
-                 interactive: bool | None = None) -> None:  # fmt: skip
+    def __init__(
+        self,
+        total: int,
+        label: str = "slam",
+        stream: TextIO | None = None,
+        ate_every: int = 10,
+        interactive: bool | None = None,
+    ) -> None:
         self.bar = ProgressBar(total, label, stream, interactive=interactive)
         self.ate_every = max(1, ate_every)
         self._est: list[np.ndarray] = []  # [4, 4] c2w of frames with ground truth

@@ -173,8 +173,11 @@ class _Replay:
             self.report()
         finally:
             pipeline.shutdown()
-        result = RealtimeResult(self._stats(pipeline, times, hz, wall_s), interrupted=interrupted,
-                                first_skip=self.first_skip or (self.errors[0] if self.errors else ""))  # fmt: skip
+        result = RealtimeResult(
+            self._stats(pipeline, times, hz, wall_s),
+            interrupted=interrupted,
+            first_skip=self.first_skip or (self.errors[0] if self.errors else ""),
+        )
         for index in sorted(self.tracked):
             gt_c2w, outcome = self.tracked[index]
             mapped = self.mapped.get(index, MapOutcome.not_mapped())
@@ -189,7 +192,12 @@ class _Replay:
         duration = float(times[-1]) if len(times) > 1 else 0.0
         rate = (len(times) - 1) / duration if duration > 0 else float(hz or 0.0)
         return RealtimeStats(
-            frames_in=st.frames_in + self.unreadable, frames_tracked=len(self.tracked),
-            frames_dropped=st.frames_in - len(self.tracked) - st.tracking_errors, frames_mapped=mapped,
-            realtime_hz=rate, wall_s=wall_s, late_frames=self.late, bad_frames=self.unreadable + st.tracking_errors,
-        )  # fmt: skip
+            frames_in=st.frames_in + self.unreadable,
+            frames_tracked=len(self.tracked),
+            frames_dropped=st.frames_in - len(self.tracked) - st.tracking_errors,
+            frames_mapped=mapped,
+            realtime_hz=rate,
+            wall_s=wall_s,
+            late_frames=self.late,
+            bad_frames=self.unreadable + st.tracking_errors,
+        )

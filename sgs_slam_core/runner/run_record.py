@@ -40,8 +40,9 @@ def write_ground_truth(path: Path, stamps_ns: list[int], gt_c2w: list[np.ndarray
 
 def _git(*args: str) -> str | None:
     try:
-        out = subprocess.run(["git", "-C", str(_SOURCE_DIR), *args], capture_output=True, text=True, timeout=10,
-                             check=False)  # fmt: skip
+        out = subprocess.run(
+            ["git", "-C", str(_SOURCE_DIR), *args], capture_output=True, text=True, timeout=10, check=False
+        )
     except (OSError, subprocess.SubprocessError):
         return None
     return out.stdout.strip() if out.returncode == 0 else None
@@ -78,8 +79,12 @@ def device_info(device: torch.device) -> dict[str, Any]:
     info: dict[str, Any] = {"type": device.type}
     if device.type == "cuda":
         props = torch.cuda.get_device_properties(device)
-        info.update(name=props.name, capability=f"{props.major}.{props.minor}",
-                    memory_gib=round(props.total_memory / 2**30, 1), cuda=torch.version.cuda)  # fmt: skip
+        info.update(
+            name=props.name,
+            capability=f"{props.major}.{props.minor}",
+            memory_gib=round(props.total_memory / 2**30, 1),
+            cuda=torch.version.cuda,
+        )
     else:
         info.update(name=_cpu_name(), threads=torch.get_num_threads(), cores=os.cpu_count())
     return info

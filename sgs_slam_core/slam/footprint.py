@@ -23,9 +23,13 @@ class Footprint:
 
     def as_metrics(self) -> dict[str, float]:
         """Plain numbers for metrics.json and benchmarks."""
-        return {"num_gaussians": self.gaussians, "gaussian_mb": round(self.gaussian_bytes / 2**20, 2),
-                "keyframes": self.keyframes, "keyframe_mb": round(self.keyframe_bytes / 2**20, 2),
-                "keyframes_evicted": self.keyframes_evicted}  # fmt: skip
+        return {
+            "num_gaussians": self.gaussians,
+            "gaussian_mb": round(self.gaussian_bytes / 2**20, 2),
+            "keyframes": self.keyframes,
+            "keyframe_mb": round(self.keyframe_bytes / 2**20, 2),
+            "keyframes_evicted": self.keyframes_evicted,
+        }
 
     def as_strings(self) -> dict[str, str]:
         """Key/value strings for a diagnostics status."""
@@ -39,8 +43,10 @@ class Footprint:
 
     def summary(self) -> str:
         """Short text for a progress bar: ``12,345 Gaussians (1.2 MB), 40 keyframes (73 MB)``."""
-        return (f"{self.gaussians:,} Gaussians ({self.gaussian_bytes / 2**20:.1f} MB), "
-                f"{self.keyframes} keyframes ({self.keyframe_bytes / 2**20:.0f} MB)")  # fmt: skip
+        return (
+            f"{self.gaussians:,} Gaussians ({self.gaussian_bytes / 2**20:.1f} MB), "
+            f"{self.keyframes} keyframes ({self.keyframe_bytes / 2**20:.0f} MB)"
+        )
 
 
 def footprint(slam: Slam) -> Footprint:

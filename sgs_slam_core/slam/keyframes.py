@@ -96,10 +96,12 @@ def select_window(
     after_geo = len(keep)
     if s.semantic_filter and current_labels is not None:
         keep = [
-            i for i in keep
-            if older[i].labels is None or older[i].labels.shape != current_labels.shape
+            i
+            for i in keep
+            if older[i].labels is None
+            or older[i].labels.shape != current_labels.shape
             or label_miou(older[i].labels, current_labels) <= s.semantic_threshold
-        ]  # fmt: skip
+        ]
     after_sem = len(keep)
     keep = [keep[j] for j in rng.permutation(len(keep))[: max(s.window_size - 2, 0)]]
     chosen = (*sorted(keep), len(store) - 1)

@@ -33,7 +33,7 @@ from sgs_slam_core.slam.guard import TrackingGuard
 from sgs_slam_core.slam.keyframe_store import KeyframeStore
 from sgs_slam_core.slam.keyframes import is_keyframe
 from sgs_slam_core.slam.map_frame import MapFrameChoice, MapFramePolicy
-from sgs_slam_core.slam.mapper import map_window
+from sgs_slam_core.slam.mapper import MapStats, WindowFrame, map_window
 from sgs_slam_core.slam.motion import MotionModel
 from sgs_slam_core.slam.outcomes import MapOutcome, StepResult, TrackOutcome
 from sgs_slam_core.slam.trackers import build_tracker
@@ -185,8 +185,7 @@ class Slam:
         data = data.with_ignore(self.edits.ignore_mask(data.labels))  # the locks now: an edit may have come since
         use_sem = frame.labels is not None
         with stage("densify"):
-            gaussians, added = densify_frame(self.gaussians, data, frame, tracked.c2w, self.config.densify,
-                                             self.kernels, self.codec, self.edits, self.torch_rng)  # fmt: skip
+            gaussians, added = self._densified(data, frame, tracked.c2w)
         timings["densify"] = time.perf_counter() - t0
         stats, window = None, None
         if self._mapping_due(tracked.index):
@@ -196,9 +195,7 @@ class Slam:
                 window = choose_window(self.keyframes, data, tracked.c2w, frame.labels, self.config.keyframes, self.rng)
             timings["keyframe_selection"] = time.perf_counter() - t_sel
             frames = upload_window(self.keyframes, window, data, tracked.c2w, self.codec, self.edits)
-            result = map_window(gaussians, frames, self.config.mapping, self.kernels, self.scene_radius, use_sem,
-                                self.rng, self.edits.locked_labels, between_iterations)  # fmt: skip
-            gaussians, stats = result.gaussians, result.stats
+            gaussians, stats = self._optimised(gaussians, frames, use_sem, between_iterations)
         if self.config.mapping.refresh_labels and use_sem:
             gaussians = self._refreshed_labels(gaussians)
         if before_publish is not None:
@@ -207,6 +204,41 @@ class Slam:
         keyframe = self._keep_keyframe(frame, tracked)
         timings["map"] = time.perf_counter() - t0
         return MapOutcome(stats, window, keyframe, added, timings["map"], timings)
+
+    def _densified(self, data: FrameTensors, frame: Frame, c2w: np.ndarray) -> tuple[GaussianMap, int]:
+        """The map with Gaussians added where it does not explain ``frame`` seen from ``c2w`` [4, 4]; how many."""
+        return densify_frame(
+            self.gaussians,
+            data,
+            frame,
+            c2w,
+            settings=self.config.densify,
+            kernels=self.kernels,
+            codec=self.codec,
+            edits=self.edits,
+            generator=self.torch_rng,
+        )
+
+    def _optimised(
+        self,
+        gaussians: GaussianMap,
+        window: list[WindowFrame],
+        use_semantics: bool,
+        between_iterations: Callable[[], bool] | None,
+    ) -> tuple[GaussianMap, MapStats]:
+        """``gaussians`` after the mapping iterations on ``window``, and what they did."""
+        result = map_window(
+            gaussians,
+            window,
+            self.config.mapping,
+            kernels=self.kernels,
+            scene_radius=self.scene_radius,
+            use_semantics=use_semantics,
+            rng=self.rng,
+            frozen_labels=self.edits.locked_labels,
+            between_iterations=between_iterations,
+        )
+        return result.gaussians, result.stats
 
     # ------------------------------------------------------------------ edits (serialised by the caller)
     def apply_edit(self, request: EditRequest) -> EditRecord:

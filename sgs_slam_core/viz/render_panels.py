@@ -91,15 +91,33 @@ def _depth_row(fig: Figure, axes: list[Axes], p: RenderPanel) -> None:
     valid = p.gt_depth > 0
     vmax = float(p.gt_depth[valid].max()) if valid.any() else max(float(p.depth.max()), 1e-3)
     cmap = colormaps["turbo"].with_extremes(bad="black")
-    _image(axes[0], np.ma.masked_where(~valid, p.gt_depth), "ground truth depth (black: none)", cmap=cmap, vmin=0,
-           vmax=vmax)  # fmt: skip
-    h = _image(axes[1], np.ma.masked_where(p.depth <= 0, p.depth), f"rendered depth (L1 {p.depth_l1_cm:.2f} cm)",
-               cmap=cmap, vmin=0, vmax=vmax)  # fmt: skip
+    _image(
+        axes[0],
+        np.ma.masked_where(~valid, p.gt_depth),
+        "ground truth depth (black: none)",
+        cmap=cmap,
+        vmin=0,
+        vmax=vmax,
+    )
+    h = _image(
+        axes[1],
+        np.ma.masked_where(p.depth <= 0, p.depth),
+        f"rendered depth (L1 {p.depth_l1_cm:.2f} cm)",
+        cmap=cmap,
+        vmin=0,
+        vmax=vmax,
+    )
     fig.colorbar(h, ax=axes[:2], label="depth (m)", shrink=0.9)
     err_cm = np.ma.masked_where(~valid, 100 * np.abs(p.depth - p.gt_depth))
     top = float(np.percentile(err_cm.compressed(), 99)) if err_cm.count() else 1.0
-    e = _image(axes[2], err_cm, "depth error (grey: no ground truth; scale to 99th pct.)",
-               cmap=colormaps["magma"].with_extremes(bad="#b0b0b0"), vmin=0, vmax=max(top, 1e-3))  # fmt: skip
+    e = _image(
+        axes[2],
+        err_cm,
+        "depth error (grey: no ground truth; scale to 99th pct.)",
+        cmap=colormaps["magma"].with_extremes(bad="#b0b0b0"),
+        vmin=0,
+        vmax=max(top, 1e-3),
+    )
     fig.colorbar(e, ax=axes[2], label="|error| (cm)", shrink=0.9)
 
 
@@ -117,8 +135,15 @@ def _semantic_row(fig: Figure, axes: list[Axes], p: RenderPanel, table: LabelTab
     handles = [Patch(color=np.array(table.color_of(i)) / 255, label=f"{i} {table.name_of(i)}") for i in ids]
     if len(handles) > _MAX_LEGEND:
         handles = [*handles[: _MAX_LEGEND - 1], Patch(color="white", label=f"... {len(ids) - _MAX_LEGEND + 1} more")]
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 7), fontsize=8,
-               title="classes", title_fontsize=8, frameon=False)  # fmt: skip
+    fig.legend(
+        handles=handles,
+        loc="outside lower center",
+        ncols=min(len(handles), 7),
+        fontsize=8,
+        title="classes",
+        title_fontsize=8,
+        frameon=False,
+    )
 
 
 def save_render_panels(path: str | Path, panel: RenderPanel, table: LabelTable, title: str = "") -> None:

@@ -79,8 +79,10 @@ class RerunViewer(StreamingViewer):
         elif options.live:  # serving: fail now rather than at the first frame
             check_port_free(options.host, self.port)
             check_port_free(options.host, self.web_port)
-            self.where.append(f"rerun: no display here; open http://{options.host}:{self.web_port} in a browser "
-                              f"or run `rerun --connect {self.url}`")  # fmt: skip
+            self.where.append(
+                f"rerun: no display here; open http://{options.host}:{self.web_port} in a browser "
+                f"or run `rerun --connect {self.url}`"
+            )
         if options.save is not None:
             self.where.append(f"rerun: recording to {options.save} (open with `rerun {options.save}`)")
 

@@ -95,13 +95,24 @@ class SnapshotRecorder:
         if points is not None:
             self._points_sent_at = step.index
         return Snapshot(
-            index=step.index, stamp_ns=step.track.stamp_ns, c2w=step.c2w, intrinsics=frame.intrinsics, rgb=frame.rgb,
-            depth=frame.depth, labels=frame.labels, render_rgb=render_rgb, render_depth=render_depth,
-            render_labels=render_labels, path=np.stack(self._path),
-            gt_path=np.stack(self._gt_path) if self._gt_path else None, points=points,
-            num_gaussians=step.num_gaussians, track_ms=1e3 * step.track.time_s, map_ms=1e3 * step.map.time_s,
+            index=step.index,
+            stamp_ns=step.track.stamp_ns,
+            c2w=step.c2w,
+            intrinsics=frame.intrinsics,
+            rgb=frame.rgb,
+            depth=frame.depth,
+            labels=frame.labels,
+            render_rgb=render_rgb,
+            render_depth=render_depth,
+            render_labels=render_labels,
+            path=np.stack(self._path),
+            gt_path=np.stack(self._gt_path) if self._gt_path else None,
+            points=points,
+            num_gaussians=step.num_gaussians,
+            track_ms=1e3 * step.track.time_s,
+            map_ms=1e3 * step.map.time_s,
             tracking_failed=step.track.failed,
-        )  # fmt: skip
+        )
 
     @staticmethod
     def _render(slam: Slam, c2w: np.ndarray, semantic: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

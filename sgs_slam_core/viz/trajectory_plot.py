@@ -70,8 +70,16 @@ def _colored_path(ax: Axes, xy: np.ndarray, errors_cm: np.ndarray | None, norm: 
     return lines
 
 
-def _draw_view(ax: Axes, est: np.ndarray, gt: np.ndarray | None, axes: tuple[int, int], errors_cm: np.ndarray | None,
-               norm: Normalize, title: str, flip_y: bool) -> LineCollection | None:  # fmt: skip
+def _draw_view(
+    ax: Axes,
+    est: np.ndarray,
+    gt: np.ndarray | None,
+    axes: tuple[int, int],
+    errors_cm: np.ndarray | None,
+    norm: Normalize,
+    title: str,
+    flip_y: bool,
+) -> LineCollection | None:
     i, j = axes
     if gt is not None:
         ax.plot(gt[:, i], gt[:, j], ls="--", color=_GT_COLOR, lw=1.2, label="ground truth")

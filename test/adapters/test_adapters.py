@@ -181,7 +181,14 @@ def test_rosbags_messages_are_read_too():
         ts.types[n] for n in ("sensor_msgs/msg/Image", "std_msgs/msg/Header", "builtin_interfaces/msg/Time")
     )
     arr = ARRAYS["16UC1"]
-    msg = image_cls(header=header_cls(stamp=time_cls(sec=1, nanosec=2), frame_id="cam"), height=5, width=7,
-                    encoding="16UC1", is_bigendian=0, step=14, data=arr.view(np.uint8).reshape(-1))  # fmt: skip
+    msg = image_cls(
+        header=header_cls(stamp=time_cls(sec=1, nanosec=2), frame_id="cam"),
+        height=5,
+        width=7,
+        encoding="16UC1",
+        is_bigendian=0,
+        step=14,
+        data=arr.view(np.uint8).reshape(-1),
+    )
     assert np.array_equal(image_to_numpy(msg), arr)
     assert math.isclose(float(depth_from_image(msg)[0, 0]), arr[0, 0] / 1000, rel_tol=1e-6)

@@ -21,8 +21,11 @@ IMAGE = "sensor_msgs/msg/Image"
 
 
 def image_cdr(arr, encoding, stamp_ns, frame_id, little_endian=True):
-    return bytes(TS.serialize_cdr(rm.image(TS, image_fields(arr, encoding, stamp_ns, frame_id)), IMAGE,
-                                  little_endian=little_endian))  # fmt: skip
+    return bytes(
+        TS.serialize_cdr(
+            rm.image(TS, image_fields(arr, encoding, stamp_ns, frame_id)), IMAGE, little_endian=little_endian
+        )
+    )
 
 
 def make_schema():

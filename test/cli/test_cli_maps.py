@@ -49,14 +49,34 @@ def test_edit_remove_writes_a_new_locked_map_and_leaves_the_input(map_path, tmp_
 
 def test_edit_move_one_instance_to_ply(map_path, tmp_path):
     out = tmp_path / "moved.ply"
-    args = ["edit", str(map_path), "--move-label", str(CHAIR), "--instance", "1", "--translate", "0", "0.5", "0",
-            "--rotate-deg", "0", "0", "360", "--out", str(out)]  # fmt: skip
+    args = [
+        "edit",
+        str(map_path),
+        "--move-label",
+        str(CHAIR),
+        "--instance",
+        "1",
+        "--translate",
+        "0",
+        "0.5",
+        "0",
+        "--rotate-deg",
+        "0",
+        "0",
+        "360",
+        "--out",
+        str(out),
+    ]
     assert main(args) == 0
     moved, table = read_splat_ply(out)
     scene = labelled_scene()
     small = (scene.labels == CHAIR) & (scene.means[:, 0] > 0)
-    torch.testing.assert_close(moved.means[small] - scene.means[small], torch.tensor([[0.0, 0.5, 0.0]]).expand(
-        int(small.sum()), 3), rtol=0, atol=1e-5)  # fmt: skip
+    torch.testing.assert_close(
+        moved.means[small] - scene.means[small],
+        torch.tensor([[0.0, 0.5, 0.0]]).expand(int(small.sum()), 3),
+        rtol=0,
+        atol=1e-5,
+    )
     assert torch.equal(moved.means[~small], scene.means[~small]) and table == TABLE
 
 
@@ -72,8 +92,9 @@ def test_render_views_from_a_matrix_a_trajectory_and_an_orbit(map_path, tmp_path
 
     traj = tmp_path / "traj.txt"
     write_tum_trajectory(traj, [0, 1_000_000_000], np.stack([np.eye(4), np.eye(4)]))
-    assert main(["render", str(map_path), "--trajectory", str(traj), "--out", str(tmp_path / "tr"),
-                 "--width", "32"]) == 0  # fmt: skip
+    assert (
+        main(["render", str(map_path), "--trajectory", str(traj), "--out", str(tmp_path / "tr"), "--width", "32"]) == 0
+    )
     assert cv2.imread(str(tmp_path / "tr" / "color_00001.png")).shape == (24, 32, 3)
 
     assert main(["render", str(map_path), "--orbit", "3", "--out", str(tmp_path / "orbit")]) == 0

@@ -29,8 +29,16 @@ def run_dir(tiny_scene, tmp_path_factory):
 
 
 def test_run_writes_the_documented_outputs(run_dir, capsys):
-    for name in ("trajectory.txt", "metrics.json", "config.yaml", "map.ply", "map.sgsmap", "trajectory.png", "run.yaml",
-                 "frames.csv"):  # fmt: skip
+    for name in (
+        "trajectory.txt",
+        "metrics.json",
+        "config.yaml",
+        "map.ply",
+        "map.sgsmap",
+        "trajectory.png",
+        "run.yaml",
+        "frames.csv",
+    ):
         assert (run_dir / name).is_file(), name
     metrics = json.loads((run_dir / "metrics.json").read_text())
     assert all(k in metrics for k in KEYS)

@@ -53,8 +53,15 @@ def test_slam_progress_shows_live_ate_gaussians_and_failures():
     progress = SlamProgress(5, stream=out, interactive=False)
     progress.bar.log_every_s = 0.0
     n = 12345
-    gaussians = GaussianMap(torch.zeros(n, 3), torch.zeros(n, 1), torch.zeros(n), torch.zeros(n, 3), torch.zeros(n, 3),
-                            torch.zeros(n, dtype=torch.long), torch.zeros(n, dtype=torch.long))  # fmt: skip
+    gaussians = GaussianMap(
+        torch.zeros(n, 3),
+        torch.zeros(n, 1),
+        torch.zeros(n),
+        torch.zeros(n, 3),
+        torch.zeros(n, 3),
+        torch.zeros(n, dtype=torch.long),
+        torch.zeros(n, dtype=torch.long),
+    )
     slam = SimpleNamespace(gaussians=gaussians, keyframes=KeyframeStore(KeyframeSettings()), failures=0)
     for i in range(5):
         slam.failures = 1 if i == 4 else 0

@@ -21,10 +21,18 @@ from sgs_slam_core.synthetic.textures import Material
 K = Intrinsics(fx=80.0, fy=80.0, cx=79.5, cy=59.5, width=160, height=120)
 _PLAIN = Material(base=(0.5, 0.5, 0.5))
 # the inside of a box around the camera (m), and a single far wall (the camera looks along +z)
-BOX = Scene((RoomShell(1, _PLAIN, lo=(-2.0, -1.2, -1.0), hi=(1.5, 1.0, 3.0)),), LabelTable.nyu40(),
-            (-2.0, -1.2, -1.0), (1.5, 1.0, 3.0))  # fmt: skip
-WALL = Scene((Box(1, _PLAIN, center=(0.0, 0.0, 3.05), half=(20.0, 20.0, 0.05)),), LabelTable.nyu40(),
-             (-20.0, -20.0, 3.0), (20.0, 20.0, 3.1))  # fmt: skip
+BOX = Scene(
+    (RoomShell(1, _PLAIN, lo=(-2.0, -1.2, -1.0), hi=(1.5, 1.0, 3.0)),),
+    LabelTable.nyu40(),
+    (-2.0, -1.2, -1.0),
+    (1.5, 1.0, 3.0),
+)
+WALL = Scene(
+    (Box(1, _PLAIN, center=(0.0, 0.0, 3.05), half=(20.0, 20.0, 0.05)),),
+    LabelTable.nyu40(),
+    (-20.0, -20.0, 3.0),
+    (20.0, 20.0, 3.1),
+)
 
 
 def room_depth(c2w: np.ndarray, scene: Scene = BOX) -> torch.Tensor:  # [H, W] m, 0 where no hit

@@ -57,8 +57,9 @@ def nodes(scene: Path, work: Path) -> Callable[[], None]:
         from test.ros.helpers import Feeder, Spinner, new_context, node_params, shut_down, wait_for
 
         ds = open_dataset(scene)
-        frames = [dataclasses.replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32))
-                  for i in range(4)]  # fmt: skip
+        frames = [
+            dataclasses.replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32)) for i in range(4)
+        ]
         ctx = new_context()
         built = build_slam_nodes(context=ctx, parameter_overrides=node_params(map_path=str(work / "node.sgsmap")))
         feeder = Feeder(ctx)
@@ -87,37 +88,45 @@ def nodes(scene: Path, work: Path) -> Callable[[], None]:
     return step
 
 
-def main(work: Path) -> int:
+FOUR = ("--max-frames", "4")
+TORCH = ("--set", "render.backend=torch")
+GN = ("--set", "tracking.method=gauss_newton", "--set", "tracking.gauss_newton.semantic_scale_m=0.05")
+GN_TWO_ADAM_STEPS = ("--set", "tracking.gauss_newton.adam_steps=2")
+
+
+def steps(work: Path) -> list[tuple[str, Callable[[], None]]]:
+    """Every CLI command and the node, each on a kernel path it has."""
     scene, run, bag = work / "tiny", work / "run", work / "bag"
-    steps: list[tuple[str, Callable[[], None]]] = [
+    sgsmap = str(run / "map.sgsmap")
+    move = ("--move-label", "table", "--translate", "0.2", "0", "0", "--rotate-deg", "0", "0", "10")
+    return [
         ("synth", cli("synth", str(scene), "--preset", "tiny")),
         ("run (lockstep)", cli("run", str(scene), "--out", str(run), *FAST)),
-        ("run (torch renderer)", cli("run", str(scene), "--out", str(work / "run_torch"), "--max-frames", "4", *FAST,
-                                     "--set", "render.backend=torch")),
+        ("run (torch renderer)", cli("run", str(scene), "--out", str(work / "run_torch"), *FOUR, *FAST, *TORCH)),
         ("run --realtime", cli("run", str(scene), "--out", str(work / "run_rt"), "--realtime", "30", *FAST)),
-        ("run (Gauss-Newton tracker)", cli("run", str(scene), "--out", str(work / "run_gn"), "--max-frames", "4", *FAST,
-                                           "--set", "tracking.method=gauss_newton", "--set",
-                                           "tracking.gauss_newton.semantic_scale_m=0.05", "--set",
-                                           "tracking.gauss_newton.adam_steps=2")),
-        ("run (Gauss-Newton tracker, torch kernels)", cli("run", str(scene), "--out", str(work / "run_gn_torch"),
-                                                          "--max-frames", "4", *FAST, "--set", "render.backend=torch",
-                                                          "--set", "tracking.method=gauss_newton", "--set",
-                                                          "tracking.gauss_newton.semantic_scale_m=0.05")),
+        (
+            "run (Gauss-Newton tracker)",
+            cli("run", str(scene), "--out", str(work / "run_gn"), *FOUR, *FAST, *GN, *GN_TWO_ADAM_STEPS),
+        ),
+        (
+            "run (Gauss-Newton tracker, torch kernels)",
+            cli("run", str(scene), "--out", str(work / "run_gn_torch"), *FOUR, *FAST, *TORCH, *GN),
+        ),
         ("eval", cli("eval", str(run), "--no-write")),
-        ("labels", cli("labels", str(run / "map.sgsmap"))),
-        ("edit remove", cli("edit", str(run / "map.sgsmap"), "--remove-label", "chair", "--out",
-                            str(work / "e.sgsmap"))),
-        ("edit move", cli("edit", str(run / "map.sgsmap"), "--move-label", "table", "--translate", "0.2", "0", "0",
-                          "--rotate-deg", "0", "0", "10", "--out", str(work / "m.sgsmap"))),
+        ("labels", cli("labels", sgsmap)),
+        ("edit remove", cli("edit", sgsmap, "--remove-label", "chair", "--out", str(work / "e.sgsmap"))),
+        ("edit move", cli("edit", sgsmap, *move, "--out", str(work / "m.sgsmap"))),
         ("render", cli("render", str(work / "m.sgsmap"), "--orbit", "2", "--semantic", "--out", str(work / "orbit"))),
-        ("export ply", cli("export", str(run / "map.sgsmap"), "--out", str(work / "map.ply"))),
-        ("export points", cli("export", str(run / "map.sgsmap"), "--points", "--semantic", "--out",
-                              str(work / "p.ply"))),
+        ("export ply", cli("export", sgsmap, "--out", str(work / "map.ply"))),
+        ("export points", cli("export", sgsmap, "--points", "--semantic", "--out", str(work / "p.ply"))),
         ("bag convert", bag_convert(scene, bag)),
-        ("run bag", cli("run", str(bag), "--out", str(work / "run_bag"), "--max-frames", "4", *FAST)),
+        ("run bag", cli("run", str(bag), "--out", str(work / "run_bag"), *FOUR, *FAST)),
         ("slam_node", nodes(scene, work)),
-    ]  # fmt: skip
-    for name, step in steps:
+    ]
+
+
+def main(work: Path) -> int:
+    for name, step in steps(work):
         try:
             step()
         except BaseException:

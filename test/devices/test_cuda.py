@@ -44,8 +44,9 @@ def test_slam_node_on_cuda(tiny_scene, tmp_path):
     from ..ros.helpers import Feeder, Spinner, new_context, node_params, shut_down, wait_for
 
     ds = open_dataset(tiny_scene)
-    frames = [dataclasses.replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32))
-              for i in range(6)]  # fmt: skip
+    frames = [
+        dataclasses.replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32)) for i in range(6)
+    ]
     ctx = new_context()
     nodes = build_slam_nodes(context=ctx, parameter_overrides=node_params(device="cuda"))
     feeder = Feeder(ctx)

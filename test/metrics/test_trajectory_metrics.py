@@ -63,9 +63,12 @@ def test_ate_of_known_noise():
 
 def evo_ape_rmse(est: np.ndarray, gt: np.ndarray) -> float:
     result = ape(
-        PosePath3D(poses_se3=list(gt)), PosePath3D(poses_se3=list(est)), metrics.PoseRelation.translation_part,
-        align=True, correct_scale=False,
-    )  # fmt: skip
+        PosePath3D(poses_se3=list(gt)),
+        PosePath3D(poses_se3=list(est)),
+        metrics.PoseRelation.translation_part,
+        align=True,
+        correct_scale=False,
+    )
     return float(result.stats["rmse"])
 
 

@@ -216,8 +216,10 @@ def test_gradients_of_a_loss_over_part_of_the_image():
 
 def test_without_semantics_the_semantic_group_is_empty():
     gm, k = random_scene(500, 64, 48, seed=6, dtype=torch.float64)
-    outs = {b: render(gm, k, torch.eye(4, dtype=torch.float64), RenderSettings(backend=b), with_semantics=False)
-            for b in ("torch", "cpu")}  # fmt: skip
+    outs = {
+        b: render(gm, k, torch.eye(4, dtype=torch.float64), RenderSettings(backend=b), with_semantics=False)
+        for b in ("torch", "cpu")
+    }
     assert outs["cpu"].semantic.shape == (48, 64, 0)
     assert (outs["cpu"].color - outs["torch"].color).abs().max() < 1e-12
 

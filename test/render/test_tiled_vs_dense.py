@@ -36,8 +36,9 @@ def run(gm, k, settings, method):
             proj.means2d, proj.conics, proj.opacities, feats, proj.depths, proj.radii > 0, k.width, k.height, settings
         )
     else:
-        plan = plan_tiles(proj.means2d, proj.radii, proj.depths, k.width, k.height, settings.tile_size,
-                          settings.chunk_elements)  # fmt: skip
+        plan = plan_tiles(
+            proj.means2d, proj.radii, proj.depths, k.width, k.height, settings.tile_size, settings.chunk_elements
+        )
         img, sil = method(proj.means2d, proj.conics, proj.opacities, feats, plan, settings)
     g = torch.Generator().manual_seed(2)
     loss = (img * torch.randn(img.shape, generator=g, dtype=img.dtype)).sum()

@@ -64,8 +64,9 @@ def tum_from_tiny(env: Env, frames: int = 3, name: str = "rgbd_dataset_freiburg3
     (root / "depth.txt").write_text("\n".join(depth_lines) + "\n")
     (root / "groundtruth.txt").write_text("\n".join(gt_lines) + "\n")
     k = ds.intrinsics
-    (root / "camera.yaml").write_text(yaml.safe_dump({"width": k.width, "height": k.height, "fx": k.fx, "fy": k.fy,
-                                                      "cx": k.cx, "cy": k.cy}))  # fmt: skip
+    (root / "camera.yaml").write_text(
+        yaml.safe_dump({"width": k.width, "height": k.height, "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy})
+    )
     return root
 
 

@@ -85,8 +85,14 @@ def test_ctrl_c_before_the_first_frame_leaves_no_run_folder(tiny_scene, tmp_path
 
 def cli(*args: str, **kwargs) -> subprocess.Popen:
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    return subprocess.Popen([sys.executable, "-m", "sgs_slam_core.cli", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env, **kwargs)  # fmt: skip
+    return subprocess.Popen(
+        [sys.executable, "-m", "sgs_slam_core.cli", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        **kwargs,
+    )
 
 
 def test_a_real_ctrl_c_leaves_a_complete_folder_or_none(tiny_scene, tmp_path):

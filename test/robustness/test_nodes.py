@@ -33,14 +33,17 @@ def rss_mb() -> float:
 @pytest.fixture(scope="module")
 def frames(tiny_scene):
     ds = open_dataset(tiny_scene)
-    return [dataclasses.replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32))
-            for i in range(len(ds))]  # fmt: skip
+    return [
+        dataclasses.replace(ds[i], depth=(np.round(ds[i].depth * 1000) / 1000).astype(np.float32))
+        for i in range(len(ds))
+    ]
 
 
 def start(tmp_path, **params):
     ctx = new_context()
-    nodes = build_slam_nodes(context=ctx, parameter_overrides=node_params(map_path=str(tmp_path / "m.sgsmap"),
-                                                                           **params))  # fmt: skip
+    nodes = build_slam_nodes(
+        context=ctx, parameter_overrides=node_params(map_path=str(tmp_path / "m.sgsmap"), **params)
+    )
     feeder = Feeder(ctx)
     diags: list[DiagnosticArray] = []
     feeder.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 50)
@@ -162,8 +165,9 @@ def test_label_ids_far_above_num_classes_never_kill_the_node(tmp_path, frames, m
 
 
 def raw_image(t_ns: int, width: int, height: int, encoding: str, step: int, data: bytes) -> Image:
-    return Image(header=header(t_ns, CAM), height=height, width=width, encoding=encoding, is_bigendian=0,
-                 step=step, data=data)  # fmt: skip
+    return Image(
+        header=header(t_ns, CAM), height=height, width=width, encoding=encoding, is_bigendian=0, step=step, data=data
+    )
 
 
 def test_step_and_size_that_disagree_are_dropped_and_counted(tmp_path, frames):
@@ -225,8 +229,14 @@ def test_label_adapter_bounds_ids_without_a_pass_for_narrow_encodings():
 )
 def test_a_bad_configuration_stops_the_node_with_one_line(param, message):
     env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
-    proc = subprocess.run([sys.executable, "-m", "sgs_slam_ros.slam_node", "--ros-args", "-p", param],
-                          capture_output=True, text=True, timeout=120, env=env, check=False)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-m", "sgs_slam_ros.slam_node", "--ros-args", "-p", param],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+        check=False,
+    )
     err = proc.stderr.strip()
     assert proc.returncode == 1 and "Traceback" not in err, err
     assert message in err.splitlines()[-1], err

@@ -29,8 +29,15 @@ CAMERA = "camera_color_optical_frame"
 
 
 def node_params(**extra: object) -> list[Parameter]:
-    values = {"preset": "synthetic", "overrides": FAST, "lockstep": True, "input_qos": "reliable_all",
-              "render_rate_hz": 2.0, "points_rate_hz": 2.0, "gaussians_rate_hz": 0.0} | extra  # fmt: skip
+    values = {
+        "preset": "synthetic",
+        "overrides": FAST,
+        "lockstep": True,
+        "input_qos": "reliable_all",
+        "render_rate_hz": 2.0,
+        "points_rate_hz": 2.0,
+        "gaussians_rate_hz": 0.0,
+    } | extra
     return [Parameter(k, value=v) for k, v in values.items()]
 
 

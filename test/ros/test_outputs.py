@@ -48,8 +48,9 @@ def test_one_render_per_mapped_frame_with_its_stamp_and_frame_id(start, tiny_sce
     mapping = nodes[1]
     play(feeder, frames)
     assert mapping.pipeline.wait_idle(30.0)
-    assert wait_for(lambda: received["color"] and stamp_to_ns(received["color"][-1].header.stamp)
-                    == frames[-1].stamp_ns, 5.0)  # fmt: skip
+    assert wait_for(
+        lambda: received["color"] and stamp_to_ns(received["color"][-1].header.stamp) == frames[-1].stamp_ns, 5.0
+    )
     assert not wait_for(lambda: len(received["color"]) > len(frames), 1.5)  # nothing re-sent while idle
     stamps = [stamp_to_ns(m.header.stamp) for m in received["color"]]
     assert len(set(stamps)) == len(stamps), "a frame was rendered twice"
@@ -71,8 +72,9 @@ def test_outputs_and_diagnostics_do_not_stall_under_use_sim_time(start, tiny_sce
     assert nodes[1].get_clock().now().nanoseconds == 0  # the sim clock is stopped
     assert wait_for(lambda: len(diagnostics_of(received["diag"], "mapping_node")) >= 2, 5.0)
     play(feeder, frames)
-    assert wait_for(lambda: received["color"] and stamp_to_ns(received["color"][-1].header.stamp)
-                    == frames[-1].stamp_ns, 10.0)  # fmt: skip
+    assert wait_for(
+        lambda: received["color"] and stamp_to_ns(received["color"][-1].header.stamp) == frames[-1].stamp_ns, 10.0
+    )
     assert wait_for(lambda: diagnostics_of(received["diag"], "tracking_node")[-1][2]["frames_tracked"] == "3", 5.0)
     assert diagnostics_of(received["diag"], "tracking_node")[-1][2]["frames_in"] == "3"
     held = {"gaussians", "gaussian_mb", "keyframes", "keyframe_mb", "keyframes_evicted"}  # the memory held

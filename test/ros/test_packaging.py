@@ -45,8 +45,12 @@ def test_colcon_builds_the_package_into_a_workspace(tmp_path):
     colcon = Path(sys.executable).with_name("colcon")
     proc = subprocess.run(
         [str(colcon), "build", "--merge-install", "--event-handlers", "console_direct-"],
-        cwd=ws, capture_output=True, text=True, timeout=300, check=False,
-    )  # fmt: skip
+        cwd=ws,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "Finished <<< sgs_slam_ros" in proc.stdout
     install = ws / "install"
@@ -63,13 +67,23 @@ def test_colcon_builds_the_package_into_a_workspace(tmp_path):
     env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
     run = subprocess.run(
         [str(install / "lib" / "sgs_slam_ros" / "slam_node"), "--ros-args", "-p", "preset:=nope"],
-        env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False,
-    )  # fmt: skip
+        env=env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     assert run.returncode == 1 and "slam_node: error: unknown preset 'nope'" in run.stderr, run.stderr
     where = subprocess.run(
         [sys.executable, "-c", "import sgs_slam_ros; print(sgs_slam_ros.__file__)"],
-        env=env, cwd=tmp_path, capture_output=True, text=True, timeout=60, check=True,
-    )  # fmt: skip
+        env=env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
     assert where.stdout.strip().startswith(str(site))
 
 
@@ -86,8 +100,9 @@ def test_package_xml_lists_every_runtime_dependency():
     # every ROS package the code imports
     imported = set()
     for path in (REPO / "sgs_slam_ros").glob("*.py"):
-        imported |= set(re.findall(r"^from (\w+_msgs|\w+_srvs|rclpy|rcl_interfaces|builtin_interfaces)\b",
-                                   path.read_text(), re.M))  # fmt: skip
+        imported |= set(
+            re.findall(r"^from (\w+_msgs|\w+_srvs|rclpy|rcl_interfaces|builtin_interfaces)\b", path.read_text(), re.M)
+        )
     imported.add("tf2_msgs")  # imported by name in sgs_slam_ros/tf.py
     assert imported <= depends, imported - depends
     assert parse_package(str(REPO / "vendor" / "tf2_msgs")).name == "tf2_msgs"

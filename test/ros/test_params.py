@@ -127,8 +127,14 @@ def test_the_console_script_prints_no_traceback():
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
     script = str(Path(sys.executable).with_name("slam_node"))
-    proc = subprocess.run([script, "--ros-args", "-p", "depth_scale:=1000"], env=env, capture_output=True,
-                          text=True, timeout=120, check=False)  # fmt: skip
+    proc = subprocess.run(
+        [script, "--ros-args", "-p", "depth_scale:=1000"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     assert proc.returncode == 1
     assert proc.stderr.strip() == (
         "slam_node: error: parameter depth_scale: expected a floating-point number (write 1000.0, not an integer)"

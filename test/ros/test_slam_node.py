@@ -116,8 +116,12 @@ def test_bad_input_is_counted_and_the_node_keeps_running(system, tiny):
     assert wait_for(lambda: tracking.assembler.rejected["stamps went backwards"] == 1, 5.0)
 
     def diag_drops():
-        values = [{kv.key: kv.value for kv in s.values} for a in received["diag"] for s in a.status
-                  if s.name.endswith("tracking_node")]  # fmt: skip
+        values = [
+            {kv.key: kv.value for kv in s.values}
+            for a in received["diag"]
+            for s in a.status
+            if s.name.endswith("tracking_node")
+        ]
         return values and int(values[-1]["frames_rejected"]) >= 2
 
     assert wait_for(diag_drops, 5.0)
@@ -169,8 +173,9 @@ def test_edit_services_remove_lock_and_undo(system, tiny):
     again = call(feeder, Trigger, "/mapping_node/undo_edit", Trigger.Request())
     assert not again.success and "no edit to undo" in again.message
 
-    assert set_remote(feeder, "/mapping_node", edit__remove_labels=[""], edit__move_label="7",
-                      edit__translation=[0.1, 0.0]) == [True, True, True]  # fmt: skip
+    assert set_remote(
+        feeder, "/mapping_node", edit__remove_labels=[""], edit__move_label="7", edit__translation=[0.1, 0.0]
+    ) == [True, True, True]
     bad = call(feeder, Trigger, "/mapping_node/apply_edit", Trigger.Request())
     assert not bad.success and "edit.translation needs 3 finite numbers" in bad.message
     assert set_remote(feeder, "/mapping_node", edit__translation=[0.1, 0.0, 0.0]) == [True]

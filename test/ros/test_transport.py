@@ -42,8 +42,9 @@ class CameraSized:
         k = f.intrinsics.scaled(10.0)
         rgb, depth, labels = resize_frame(f.rgb, f.depth, f.labels, k.width, k.height)
         n = self.first + i
-        return dataclasses.replace(f, rgb=rgb, depth=depth, labels=labels, intrinsics=k, stamp_ns=(n + 1) * PERIOD,
-                                   gt_c2w=None, index=n)  # fmt: skip
+        return dataclasses.replace(
+            f, rgb=rgb, depth=depth, labels=labels, intrinsics=k, stamp_ns=(n + 1) * PERIOD, gt_c2w=None, index=n
+        )
 
 
 def child_env(domain: int) -> dict[str, str]:
@@ -64,19 +65,34 @@ def test_apply_transport_keeps_a_users_profile(monkeypatch):
         apply_transport("carrier-pigeon")
 
 
+def node_arguments(overrides: str) -> list[str]:
+    """``--ros-args`` of a slam_node on a RealSense driver's topic names, with the given config overrides."""
+    remaps = {
+        "rgb/image": "color/image_raw",
+        "depth/image": "depth/image_raw",
+        "semantic/image": "semantic/image_raw",
+        "rgb/camera_info": "color/camera_info",
+    }
+    params = ["preset:=synthetic", f"overrides:={overrides}", "downscale:=10.0", "map_alignment:=optical"]
+    return [
+        "--ros-args",
+        *(a for p in params for a in ("-p", p)),
+        *(a for name, topic in remaps.items() for a in ("-r", f"{name}:=/camera/{topic}")),
+    ]
+
+
 def test_bag_player_to_slam_node_every_frame_arrives_or_is_counted(tiny_scene, tmp_path):
     bag = tmp_path / "cam640"
     convert(CameraSized(tiny_scene), bag, compress=False)
     domain = random.randint(1, 100)
     overrides = "[" + ",".join(f"'{o}'" for o in FAST) + "]"
-    remaps = [f"{n}:=/camera/{t}" for n, t in (("rgb/image", "color/image_raw"), ("depth/image", "depth/image_raw"),
-              ("semantic/image", "semantic/image_raw"), ("rgb/camera_info", "color/camera_info"))]  # fmt: skip
     node = subprocess.Popen(
-        [sys.executable, "-m", "sgs_slam_ros.slam_node", "--ros-args", "-p", "preset:=synthetic",
-         "-p", f"overrides:={overrides}", "-p", "downscale:=10.0", "-p", "map_alignment:=optical",
-         *(a for r in remaps for a in ("-r", r))],
-        env=child_env(domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-    )  # fmt: skip
+        [sys.executable, "-m", "sgs_slam_ros.slam_node", *node_arguments(overrides)],
+        env=child_env(domain),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     markers = tmp_path / "markers"
     convert(CameraSized(tiny_scene, MARKERS, first=FRAMES), markers, compress=False)
     ctx = new_context(domain)
@@ -87,8 +103,9 @@ def test_bag_player_to_slam_node_every_frame_arrives_or_is_counted(tiny_scene, t
     try:
         for source, frames in ((bag, FRAMES), (markers, MARKERS)):
             play = [sys.executable, "-m", "sgs_slam_ros.bag_player", str(source), "--wait", "120"]
-            player = subprocess.run(play, check=False, env=child_env(domain), capture_output=True, text=True,
-                                    timeout=240)  # fmt: skip
+            player = subprocess.run(
+                play, check=False, env=child_env(domain), capture_output=True, text=True, timeout=240
+            )
             assert player.returncode == 0, player.stderr
             assert f"done: {frames} frames" in player.stderr and "Fast DDS shared memory" in player.stderr, (
                 player.stderr

@@ -23,10 +23,24 @@ def start(module: str, domain: int, *params: str, overrides: list[str] = FAST) -
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)  # let the child set up its own library path
     overrides = "[" + ",".join(f"'{o}'" for o in overrides) + "]"
-    args = ["-p", "preset:=synthetic", "-p", f"overrides:={overrides}", "-p", "lockstep:=true",
-            "-p", "input_qos:=reliable_all", *(a for p in params for a in ("-p", p))]  # fmt: skip
-    return subprocess.Popen([sys.executable, "-m", module, "--ros-args", *args], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+    args = [
+        "-p",
+        "preset:=synthetic",
+        "-p",
+        f"overrides:={overrides}",
+        "-p",
+        "lockstep:=true",
+        "-p",
+        "input_qos:=reliable_all",
+        *(a for p in params for a in ("-p", p)),
+    ]
+    return subprocess.Popen(
+        [sys.executable, "-m", module, "--ros-args", *args],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
 
 
 def test_poses_arrive_across_processes(tiny_scene):

@@ -15,10 +15,21 @@ def test_every_mapped_class_exists_on_both_sides():
 
 @pytest.mark.parametrize(
     ("ade", "nyu"),
-    [("wall", "wall"), ("floor", "floor"), ("armchair", "chair"), ("swivel chair", "chair"), ("painting", "picture"),
-     ("bookcase", "bookshelf"), ("television receiver", "television"), ("chest of drawers", "dresser"),
-     ("windowpane", "window"), ("cushion", "pillow"), ("stool", "otherfurniture"), ("vase", "otherprop")],
-)  # fmt: skip
+    [
+        ("wall", "wall"),
+        ("floor", "floor"),
+        ("armchair", "chair"),
+        ("swivel chair", "chair"),
+        ("painting", "picture"),
+        ("bookcase", "bookshelf"),
+        ("television receiver", "television"),
+        ("chest of drawers", "dresser"),
+        ("windowpane", "window"),
+        ("cushion", "pillow"),
+        ("stool", "otherfurniture"),
+        ("vase", "otherprop"),
+    ],
+)
 def test_indoor_classes_map_by_meaning(ade, nyu):
     assert ade20k_to_nyu40_lut()[ADE20K_CLASSES.index(ade)] == LabelTable.nyu40().id_of(nyu)
 

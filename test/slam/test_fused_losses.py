@@ -41,8 +41,10 @@ def _case(seed: int, ignore: bool) -> tuple[RenderOutput, FrameTensors]:
 
 def _value_and_grads(loss: torch.Tensor, out: RenderOutput) -> list[torch.Tensor]:
     grads = torch.autograd.grad(loss, [out.color, out.semantic, out.depth], allow_unused=True, retain_graph=True)
-    return [loss.detach()] + [g if g is not None else torch.zeros_like(t) for g, t in
-                              zip(grads, [out.color, out.semantic, out.depth], strict=True)]  # fmt: skip
+    return [loss.detach()] + [
+        g if g is not None else torch.zeros_like(t)
+        for g, t in zip(grads, [out.color, out.semantic, out.depth], strict=True)
+    ]
 
 
 @pytest.mark.parametrize("semantics", [True, False])

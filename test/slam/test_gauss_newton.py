@@ -35,15 +35,17 @@ def target_frame(width: int = 64, height: int = 48) -> tuple[GaussianMap, FrameT
     v, u = torch.meshgrid(torch.arange(2.0 * height) / 2, torch.arange(2.0 * width) / 2, indexing="ij")
     fine = Intrinsics(2 * k.fx, 2 * k.fy, 2 * k.cx + 0.5, 2 * k.cy + 0.5, 2 * width, 2 * height)
     depth = 2.5 + 0.01 * (u - k.cx) + 0.15 * torch.sin(u / 5) * torch.cos(v / 4)
-    rgb = torch.stack([0.5 + 0.4 * torch.sin(u / 3), 0.5 + 0.4 * torch.cos(v / 2.5),
-                       0.5 + 0.2 * torch.sin((u + v) / 4)], dim=-1)  # fmt: skip
+    rgb = torch.stack(
+        [0.5 + 0.4 * torch.sin(u / 3), 0.5 + 0.4 * torch.cos(v / 2.5), 0.5 + 0.2 * torch.sin((u + v) / 4)], dim=-1
+    )
     labels = (u // 16 + v // 16).long() % 3
     surface = FrameTensors(0, fine, rgb, depth, labels, rgb.clone())
     gm = gaussians_from_pixels(surface, torch.eye(4), depth > 0, 3, DensifySettings(initial_opacity=0.95))
     with torch.no_grad():
         out = render(gm, k, torch.eye(4), SETTINGS)
-    return gm, FrameTensors(0, k, out.color, torch.where(out.silhouette > 0.99, out.depth, 0.0), None,
-                            out.semantic.clone())  # fmt: skip
+    return gm, FrameTensors(
+        0, k, out.color, torch.where(out.silhouette > 0.99, out.depth, 0.0), None, out.semantic.clone()
+    )
 
 
 def test_channel_jacobians_match_autograd_on_a_linear_image():
@@ -72,8 +74,11 @@ def test_channel_jacobians_match_autograd_on_a_linear_image():
 def test_the_tracker_recovers_a_perturbed_pose_against_the_rendered_map():
     gm, frame = target_frame(width=64, height=48)
     start = se3_exp(torch.tensor([0.03, -0.02, 0.02, 0.02, -0.03, 0.01], dtype=torch.float64)).numpy()
-    s = TrackingSettings(method="gauss_newton", sil_threshold=0.99,
-                         gauss_newton=GaussNewtonSettings(iterations=(8,), renders=2, min_width=8))  # fmt: skip
+    s = TrackingSettings(
+        method="gauss_newton",
+        sil_threshold=0.99,
+        gauss_newton=GaussNewtonSettings(iterations=(8,), renders=2, min_width=8),
+    )
     result = build_tracker(s, TORCH).track(gm, frame, start, True)
     before = np.linalg.norm(start[:3, 3])
     after = np.linalg.norm(result.w2c[:3, 3])
@@ -109,9 +114,14 @@ def test_the_method_is_a_config_value_with_checked_settings():
     assert isinstance(build_tracker(TrackingSettings(), TORCH), AdamTracker)
     cfg = load_config("tum", overrides=["tracking.method=gauss_newton", "tracking.gauss_newton.renders=2"])
     assert isinstance(build_tracker(cfg.tracking, build_kernels(cfg.render, "cpu")), GaussNewtonTracker)
-    for bad in ("tracking.method=lbfgs", "tracking.gauss_newton.renders=0", "tracking.gauss_newton.iterations=[]",
-                "tracking.gauss_newton.color_scale_m=-1", "tracking.gauss_newton.color_channels=hsv",
-                "tracking.gauss_newton.adam_lr_scale=0"):  # fmt: skip
+    for bad in (
+        "tracking.method=lbfgs",
+        "tracking.gauss_newton.renders=0",
+        "tracking.gauss_newton.iterations=[]",
+        "tracking.gauss_newton.color_scale_m=-1",
+        "tracking.gauss_newton.color_channels=hsv",
+        "tracking.gauss_newton.adam_lr_scale=0",
+    ):
         with pytest.raises(ConfigError, match="tracking"):
             load_config("tum", overrides=[bad])
 

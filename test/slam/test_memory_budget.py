@@ -28,8 +28,9 @@ def looking(index: int, yaw_deg: float, label: int = 1) -> CompactFrame:
     c2w[:3, :3] = [[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]
     depth = np.full((48, 64), 10000, np.uint16)  # 2 m
     labels = np.full((48, 64), label, np.int64)
-    return CompactFrame(index, index, K, np.zeros((48, 64, 3), np.uint8), depth, compact_labels(labels),
-                        np.linalg.inv(c2w))  # fmt: skip
+    return CompactFrame(
+        index, index, K, np.zeros((48, 64, 3), np.uint8), depth, compact_labels(labels), np.linalg.inv(c2w)
+    )
 
 
 def test_labels_take_the_smallest_type_that_holds_them():
@@ -119,8 +120,15 @@ def test_spacing_keeps_one_gaussian_per_cell_and_none_where_the_map_has_one():
     assert spaced(points, radii, None, 1.0).tolist() == [True, False, True, True]
     one = GaussianMap.empty(3)
     z = torch.zeros(1, dtype=torch.long)
-    existing = GaussianMap(torch.tensor([[0.5015, 5e-4, 1.0005]]), torch.zeros(1, 1), torch.zeros(1),
-                           torch.zeros(1, 3), torch.zeros(1, 3), z, z)  # fmt: skip
+    existing = GaussianMap(
+        torch.tensor([[0.5015, 5e-4, 1.0005]]),
+        torch.zeros(1, 1),
+        torch.zeros(1),
+        torch.zeros(1, 3),
+        torch.zeros(1, 3),
+        z,
+        z,
+    )
     assert spaced(points, radii, existing, 1.0).tolist() == [True, False, False, True]
     assert spaced(points, radii, one, 1.0).tolist() == [True, False, True, True]
     assert spaced(points, radii, existing, 1e-3).tolist() == [True, True, True, True]  # 1 mm cells
@@ -139,8 +147,15 @@ def test_over_budget_drops_the_least_opaque_and_never_a_locked_class():
     n = 5
     logits = torch.tensor([0.0, -3.0, 2.0, -5.0, 1.0])
     labels = torch.tensor([1, 1, 2, 7, 2])
-    g = GaussianMap(torch.zeros(n, 3), torch.zeros(n, 1), logits, torch.zeros(n, 3), torch.zeros(n, 3), labels,
-                    torch.zeros(n, dtype=torch.long))  # fmt: skip
+    g = GaussianMap(
+        torch.zeros(n, 3),
+        torch.zeros(n, 1),
+        logits,
+        torch.zeros(n, 3),
+        torch.zeros(n, 3),
+        labels,
+        torch.zeros(n, dtype=torch.long),
+    )
     assert not over_budget(g, 1, 6).any()
     assert over_budget(g, 2, 4).tolist() == [True, True, False, True, False]
     assert over_budget(g, 2, 4, frozenset({7})).tolist() == [True, True, False, False, True]

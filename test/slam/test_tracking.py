@@ -48,8 +48,11 @@ def test_tracking_loss_matches_indexed_sums_and_gives_no_gradient_outside_the_ma
     s = TrackingSettings(sil_threshold=0.5)
     loss = build_kernels(RenderSettings(backend=backend), "cpu").tracking_loss(out, frame, s, use_semantics=True)
     mask = frame.valid & (out.silhouette.detach() > 0.5) & torch.isfinite(depth.detach())
-    expected = ((depth - frame.depth).abs()[mask].sum() + 0.5 * (out.color - frame.rgb).abs()[mask].sum()
-                + 0.05 * (out.semantic - frame.semantic).abs()[mask].sum())  # fmt: skip
+    expected = (
+        (depth - frame.depth).abs()[mask].sum()
+        + 0.5 * (out.color - frame.rgb).abs()[mask].sum()
+        + 0.05 * (out.semantic - frame.semantic).abs()[mask].sum()
+    )
     assert int(loss.pixels) == int(mask.sum()) > 100
     torch.testing.assert_close(loss.total, expected)
     torch.testing.assert_close(loss.depth_residual_m, (depth - frame.depth).abs()[mask].mean().detach())
@@ -78,13 +81,11 @@ def adam_settings(**adam: float) -> TrackingSettings:
 def test_reading_the_stop_test_less_often_changes_nothing_but_the_stop_step():
     gm, frame = target_frame()
     start = se3_exp(torch.tensor([0.02, -0.01, 0.01, 0.01, -0.015, 0.005], dtype=torch.float64)).numpy()
-    fixed = [track(gm, frame, start, adam_settings(early_stop=False, stop_check_every=c), TORCH, True)
-             for c in (1, 7)]  # fmt: skip
+    fixed = [track(gm, frame, start, adam_settings(early_stop=False, stop_check_every=c), TORCH, True) for c in (1, 7)]
     assert fixed[0].iterations == fixed[1].iterations == 60
     assert np.array_equal(fixed[0].w2c, fixed[1].w2c) and fixed[0].loss == fixed[1].loss
     assert np.abs(fixed[0].w2c - np.eye(4)).max() < 0.2 * np.abs(start - np.eye(4)).max()  # it converged
-    every, sparse = (track(gm, frame, start, adam_settings(stop_check_every=c), TORCH, True)
-                     for c in (1, 7))  # fmt: skip
+    every, sparse = (track(gm, frame, start, adam_settings(stop_check_every=c), TORCH, True) for c in (1, 7))
     assert every.converged and sparse.converged
     assert sparse.iterations % 7 == 0 and every.iterations <= sparse.iterations  # stops only where it reads
     assert sparse.loss <= every.loss  # more steps never lose the best pose

@@ -55,8 +55,11 @@ def foxglove_run(tiny_scene, tmp_path_factory):
     out = tmp_path_factory.mktemp("fox")
     dataset = open_dataset(tiny_scene, options=DatasetOptions(max_frames=FRAMES))
     port = free_port()
-    viewer = open_viewer(ViewerOptions("foxglove", live=True, save=out / "run" / "live.mcap", port=port,
-                                       settings=ViewerSettings(points_every=2)))  # fmt: skip
+    viewer = open_viewer(
+        ViewerOptions(
+            "foxglove", live=True, save=out / "run" / "live.mcap", port=port, settings=ViewerSettings(points_every=2)
+        )
+    )
     seen_live = []
     original = viewer.log_step
 
@@ -65,8 +68,14 @@ def foxglove_run(tiny_scene, tmp_path_factory):
         original(frame, step, slam)
 
     viewer.log_step = log_step
-    result = run_offline(dataset, load_config("synthetic", overrides=QUICK), out / "run", show_progress=False,
-                         render_examples=0, viewer=viewer)  # fmt: skip
+    result = run_offline(
+        dataset,
+        load_config("synthetic", overrides=QUICK),
+        out / "run",
+        show_progress=False,
+        render_examples=0,
+        viewer=viewer,
+    )
     return result, dataset, out / "run" / "live.mcap", seen_live, port
 
 
@@ -74,14 +83,35 @@ def test_cli_records_the_rerun_stream_inside_the_run_folder(tiny_scene, tmp_path
     out = tmp_path / "run"
     rrd = out / "live.rrd"  # inside the run folder, which the run creates after the viewer is opened
     sets = [a for o in QUICK for a in ("--set", o)]
-    args = ["run", str(tiny_scene), "--out", str(out), "--max-frames", str(FRAMES), "--quiet",
-            "--viewer-save", str(rrd), "--viewer-points-every", "2", *sets]  # fmt: skip
+    args = [
+        "run",
+        str(tiny_scene),
+        "--out",
+        str(out),
+        "--max-frames",
+        str(FRAMES),
+        "--quiet",
+        "--viewer-save",
+        str(rrd),
+        "--viewer-points-every",
+        "2",
+        *sets,
+    ]
     assert main(args) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     rows = rrd_rows(rrd)
-    for entity in ("/world/camera", "/world/camera/input/rgb", "/world/camera/input/depth",
-                   "/world/camera/input/labels", "/render/color", "/render/depth", "/render/semantic",
-                   "/world/trajectory", "/world/ground_truth", "/stats/gaussians"):  # fmt: skip
+    for entity in (
+        "/world/camera",
+        "/world/camera/input/rgb",
+        "/world/camera/input/depth",
+        "/world/camera/input/labels",
+        "/render/color",
+        "/render/depth",
+        "/render/semantic",
+        "/world/trajectory",
+        "/world/ground_truth",
+        "/stats/gaussians",
+    ):
         assert [r["frame"] for r in rows[entity]] == list(range(FRAMES)), entity
     strips = [r["LineStrips3D:strips"][0] for r in rows["/world/trajectory"]]
     assert [len(s) for s in strips] == [1, 2, 3]  # the camera path grows by one centre per frame
@@ -117,8 +147,18 @@ def test_foxglove_stream_is_served_live_and_recorded(foxglove_run):
                 clouds.append(message)
     assert schemas["/tf"] == "foxglove.FrameTransforms" and schemas["/map/points"] == "foxglove.PointCloud"
     assert schemas["/camera/image"] == schemas["/render/semantic"] == "foxglove.RawImage"
-    for topic in ("/tf", "/camera/image", "/camera/depth", "/camera/labels", "/camera/calibration", "/render/color",
-                  "/render/depth", "/render/semantic", "/slam/paths", "/slam/status"):  # fmt: skip
+    for topic in (
+        "/tf",
+        "/camera/image",
+        "/camera/depth",
+        "/camera/labels",
+        "/camera/calibration",
+        "/render/color",
+        "/render/depth",
+        "/render/semantic",
+        "/slam/paths",
+        "/slam/status",
+    ):
         assert counts[topic] == FRAMES, topic
     assert [s["frame"] for s in status] == [0, 1, 2]
     assert [s["gaussians"] for s in status] == [s.num_gaussians for s in result.steps]

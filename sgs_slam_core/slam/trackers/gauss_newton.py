@@ -66,13 +66,22 @@ class GaussNewtonTracker:
         if self.gn.adam_steps > 0:
             scale = self.gn.adam_lr_scale
             a = self.settings.adam
-            polish = replace(a, iterations=self.gn.adam_steps, lr_rotation=a.lr_rotation * scale,
-                             lr_translation=a.lr_translation * scale)  # fmt: skip
+            polish = replace(
+                a,
+                iterations=self.gn.adam_steps,
+                lr_rotation=a.lr_rotation * scale,
+                lr_translation=a.lr_translation * scale,
+            )
             adam = replace(self.settings, adam=polish)
-            polished = track(gaussians, frame, w2c.cpu().numpy(), adam, self.kernels, use_semantics,
-                             newer_frame_waiting)  # fmt: skip
-            return replace(polished, iterations=steps + polished.iterations, time_s=time.perf_counter() - t0,
-                           renders=self.gn.renders + polished.iterations)  # fmt: skip
+            polished = track(
+                gaussians, frame, w2c.cpu().numpy(), adam, self.kernels, use_semantics, newer_frame_waiting
+            )
+            return replace(
+                polished,
+                iterations=steps + polished.iterations,
+                time_s=time.perf_counter() - t0,
+                renders=self.gn.renders + polished.iterations,
+            )
         return self._judge(fixed, frame, w2c, use_semantics, init_w2c, steps, t0)
 
     def _solve(self, gaussians: GaussianMap, frame: FrameTensors, w2c: Tensor, semantic: bool) -> Tensor:
@@ -134,13 +143,24 @@ class GaussNewtonTracker:
             out = self.kernels.render(gaussians, frame.intrinsics, w2c.float(), with_semantics=use_semantics)
         with stage("track.loss"):
             loss = self.kernels.tracking_loss(out, frame, self.settings, use_semantics)
-            stats = torch.stack([loss.total.detach().double(), loss.pixels.double(),
-                                 loss.depth_residual_m.detach().double()])  # fmt: skip
+            stats = torch.stack(
+                [loss.total.detach().double(), loss.pixels.double(), loss.depth_residual_m.detach().double()]
+            )
         values = torch.cat([stats, w2c.reshape(-1)]).cpu().numpy()
         value, pixels, residual = (float(v) for v in values[:3])
         renders = self.gn.renders + 1
         if pixels == 0:  # nothing explained at the result: keep the prediction, as the Adam tracker does
-            return TrackResult(init_w2c.copy(), steps, False, float("inf"), 0.0, float("inf"), 0.0,
-                               time.perf_counter() - t0, renders)  # fmt: skip
-        return TrackResult(values[3:].reshape(4, 4), steps, True, value, value / pixels, residual,
-                           pixels / frame.depth.numel(), time.perf_counter() - t0, renders)  # fmt: skip
+            return TrackResult(
+                init_w2c.copy(), steps, False, float("inf"), 0.0, float("inf"), 0.0, time.perf_counter() - t0, renders
+            )
+        return TrackResult(
+            values[3:].reshape(4, 4),
+            steps,
+            True,
+            value,
+            value / pixels,
+            residual,
+            pixels / frame.depth.numel(),
+            time.perf_counter() - t0,
+            renders,
+        )
