@@ -7,15 +7,23 @@ fingerprint of the source text, the compiler flags, the torch version and the CP
 ``-march=native``): two checkouts with different sources never rebuild each other's cache, and an
 edited source never loads a stale build. ``render.backend: torch`` never builds them (the
 pure-PyTorch kernels, :mod:`sgs_slam_core.kernels.reference`). Importing this module builds nothing.
+
+Builds of one extension are serialised across processes by an ``flock`` that the kernel releases
+when its holder dies. torch's own build lock is a plain file that a killed build leaves behind,
+after which every later load waits for it forever; holding the ``flock``, such a file can only be
+stale, so it is removed.
 """
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
+import logging
 import os
 import platform
 import threading
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import ModuleType
 
@@ -25,6 +33,8 @@ from sgs_slam_core.errors import BackendUnavailableError
 from sgs_slam_core.fileio import read_bytes
 
 __all__ = ["NativeExtension", "prepare"]
+
+log = logging.getLogger(__name__)
 
 _CFLAGS = ("-O3", "-march=native", "-fopenmp", "-fno-math-errno", "-fno-trapping-math")
 
@@ -121,15 +131,37 @@ class NativeExtension:
         return self._error or ""
 
     def _build(self, name: str, extra_cflags: tuple[str, ...]) -> ModuleType:
-        from torch.utils.cpp_extension import load  # noqa: PLC0415 - heavy, and only needed here
+        from torch.utils.cpp_extension import _get_build_directory, load  # noqa: PLC0415 - heavy, only needed here
 
-        return load(
-            name=name,
-            sources=[str(self.source)],
-            extra_cflags=[*_CFLAGS, *extra_cflags],
-            extra_ldflags=["-fopenmp"],
-            verbose=bool(os.environ.get("SGS_SLAM_VERBOSE_BUILD")),
-        )
+        build_dir = Path(_get_build_directory(name, verbose=False))
+        with _exclusive(build_dir / "sgs_slam_build.flock"):
+            _remove_stale_torch_lock(build_dir)
+            return load(
+                name=name,
+                sources=[str(self.source)],
+                extra_cflags=[*_CFLAGS, *extra_cflags],
+                extra_ldflags=["-fopenmp"],
+                verbose=bool(os.environ.get("SGS_SLAM_VERBOSE_BUILD")),
+            )
+
+
+@contextmanager
+def _exclusive(path: Path) -> Iterator[None]:
+    """An exclusive ``flock`` on ``path`` (created if missing) for the ``with`` block; waits for it."""
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
+
+
+def _remove_stale_torch_lock(build_dir: Path) -> None:
+    """Delete torch's build lock in ``build_dir``: called holding the flock, only a killed build left it."""
+    stale = build_dir / "lock"
+    if stale.exists():
+        log.warning("removing %s, left by an interrupted build", stale)
+        stale.unlink(missing_ok=True)
 
 
 def prepare(extensions: Iterable[NativeExtension], announce: Callable[[str], None]) -> None:

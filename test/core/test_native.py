@@ -48,3 +48,61 @@ def test_the_kernels_build_where_there_is_a_compiler():
 
     for ext in EXTENSIONS:
         assert ext.is_available(), ext.unavailable_reason()
+
+
+class FakeLoad:
+    """Stands in for torch's ``load``: records whether torch's build lock was there when it was called."""
+
+    def __init__(self, build_root):
+        self.build_root, self.calls = build_root, []
+
+    def __call__(self, name, **_):
+        self.calls.append((self.build_root / name / "lock").exists())
+        return object()
+
+
+def test_a_lock_left_by_a_killed_build_does_not_hang_the_next(tmp_path, monkeypatch):
+    """torch waits forever on a ``lock`` file a killed build left; under our flock it can only be stale."""
+    import torch.utils.cpp_extension as cpp
+
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path / "ext"))
+    src = tmp_path / "k.cpp"
+    src.write_text("// k\n")
+    ext = NativeExtension("k", src, "a kernel")
+    name = ext.cache_name()
+    (tmp_path / "ext" / name).mkdir(parents=True)
+    (tmp_path / "ext" / name / "lock").write_text("")
+    fake = FakeLoad(tmp_path / "ext")
+    monkeypatch.setattr(cpp, "load", fake)
+    assert ext.is_available(), ext.unavailable_reason()
+    assert fake.calls == [False]
+
+
+def test_a_build_under_way_in_another_process_is_waited_for(tmp_path, monkeypatch):
+    import fcntl
+    import os
+    import threading
+
+    import torch.utils.cpp_extension as cpp
+
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path / "ext"))
+    src = tmp_path / "k.cpp"
+    src.write_text("// k\n")
+    ext = NativeExtension("k", src, "a kernel")
+    build_dir = tmp_path / "ext" / ext.cache_name()
+    build_dir.mkdir(parents=True)
+    (build_dir / "lock").write_text("")  # the other builder's torch lock, live while it holds the flock
+    fake = FakeLoad(tmp_path / "ext")
+    monkeypatch.setattr(cpp, "load", fake)
+    fd = os.open(build_dir / "sgs_slam_build.flock", os.O_RDWR | os.O_CREAT)  # its own open file: another holder
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    worker = threading.Thread(target=ext.is_available)
+    try:
+        worker.start()
+        worker.join(0.5)
+        assert worker.is_alive() and fake.calls == [] and (build_dir / "lock").exists()
+        (build_dir / "lock").unlink()  # the other build finishes: torch removes its lock, then the flock goes
+    finally:
+        os.close(fd)
+    worker.join(10)
+    assert not worker.is_alive() and fake.calls == [False]
