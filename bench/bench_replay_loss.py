@@ -48,9 +48,21 @@ def recorded_gaps(bag: Path) -> int:
         index.close()
 
 
-def replay(bag: Path, transport: str, downscale: float, preset: str, semantics: bool) -> dict[str, int]:
-    """One replay on a fresh DDS domain; the node's final counts and the frames the player sent."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+def replay(
+    bag: Path,
+    transport: str,
+    downscale: float,
+    preset: str,
+    semantics: bool,
+    params: tuple[str, ...] = (),
+    domain: int | None = None,
+) -> dict[str, int]:
+    """One replay on DDS domain ``domain`` (default: a random one); the node's final counts and the frames sent.
+
+    ``params``: more ``NAME:=VALUE`` parameters of the node.
+    """
+    domain = random.randint(1, 100) if domain is None else domain
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
     env.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
     node = subprocess.Popen(
@@ -67,6 +79,7 @@ def replay(bag: Path, transport: str, downscale: float, preset: str, semantics: 
             f"use_semantics:={str(semantics).lower()}",
             "-p",
             f"downscale:={downscale}",
+            *(a for param in params for a in ("-p", param)),
             *(a for r in REMAPS for a in ("-r", r)),
         ],
         env=env,

@@ -1,0 +1,143 @@
+"""Live through ROS beside ``sgs-slam run --realtime`` and lockstep: the same input, size and settings.
+
+Three runs of one RGB-D sequence:
+
+- **lockstep**: ``sgs-slam run`` processing every frame (the accuracy reference);
+- **--realtime**: ``sgs-slam run --realtime`` releasing frames at their recorded stamps;
+- **ROS**: the sequence as an MCAP bag (converted once when a dataset folder is given), played at
+  its recorded rate by ``bag_player`` into ``slam_node`` (two processes, live, at the node's
+  ``downscale`` processing size); the poses it publishes are recorded by this process.
+
+For each: frames in, frames tracked (a pose came out), the tracked fraction and the ATE RMSE of the
+tracked frames' poses (camera centres after SE(3) alignment to the ground truth). The issue's
+checks: the ROS fraction within 10 points of ``--realtime``'s, its ATE within 1.5x of lockstep.
+
+    python bench/bench_ros_live.py ../shared/data/tum_fr3_teddy --downscale 4 \\
+        [--set tracking.method=gauss_newton ...] [--no-append]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import random
+import shutil
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.bench_replay_loss import replay
+from bench.common import append_section, markdown_table
+from sgs_slam_core.datasets import open_dataset
+from sgs_slam_core.metrics import ate
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One run's frame counts and accuracy."""
+
+    name: str
+    frames_in: int
+    tracked: int
+    ate_cm: float | None
+
+    @property
+    def fraction(self) -> float:
+        return self.tracked / max(self.frames_in, 1)
+
+    def row(self) -> list[object]:
+        ate_text = "n/a" if self.ate_cm is None else f"{self.ate_cm:.2f}"
+        return [self.name, self.frames_in, self.tracked, f"{100 * self.fraction:.0f} %", ate_text]
+
+
+def is_bag(path: Path) -> bool:
+    return path.suffix == ".mcap" or any(path.glob("*.mcap"))
+
+
+def bag_of(source: Path, work: Path) -> Path:
+    """``source`` if it is a bag, else the dataset converted (full size: the node applies ``downscale``)."""
+    if is_bag(source):
+        return source
+    bag = work / f"{source.name}_bag"
+    cmd = [sys.executable, "-m", "bags.cli", "convert", str(source), "--out", str(bag)]
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    return bag
+
+
+def cli_run(source: Path, out: Path, args: argparse.Namespace, realtime: bool) -> Outcome:
+    """``sgs-slam run`` lockstep or at the recorded stamps; its counts and ATE from metrics.json."""
+    cmd = [sys.executable, "-m", "sgs_slam_core.cli", "run", str(source), "--out", str(out), "--overwrite", "--quiet"]
+    cmd += ["--downscale", str(args.downscale), "--preset", args.preset]
+    cmd += ["--realtime", "stamps"] if realtime else []
+    for item in args.overrides:
+        cmd += ["--set", item]
+    proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"bench_ros_live: {' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
+    m = json.loads((out / "metrics.json").read_text())
+    ate_m = m.get("ate_rmse_m")
+    name = "sgs-slam run --realtime" if realtime else "sgs-slam run (lockstep)"
+    return Outcome(name, m["frames_in"], m["frames_tracked"], None if ate_m is None else 100 * ate_m)
+
+
+def ros_run(bag: Path, args: argparse.Namespace) -> Outcome:
+    """The bag at its recorded rate into ``slam_node``; the published poses against the bag's ground truth."""
+    from bench.pose_recorder import PoseRecorder  # noqa: PLC0415 - rclpy only for this run
+
+    domain = random.randint(1, 100)
+    overrides = "[" + ",".join(f"'{o}'" for o in args.overrides) + "]"
+    params = (f"overrides:={overrides}", "map_alignment:=optical")
+    with PoseRecorder(domain) as recorder:
+        counts = replay(bag, "shm", args.downscale, args.preset, args.semantics, params=params, domain=domain)
+        poses = recorder.wait_quiet(5.0)
+    dataset = open_dataset(bag)
+    gt = {f.stamp_ns: f.gt_c2w for f in (dataset[i] for i in range(len(dataset))) if f.gt_c2w is not None}
+    pairs = [(c2w, gt[stamp]) for stamp, c2w in sorted(poses.items()) if stamp in gt]
+    ate_cm = (
+        100 * ate(np.stack([p for p, _ in pairs]), np.stack([g for _, g in pairs])).rmse if len(pairs) > 2 else None
+    )
+    return Outcome("bag_player -> slam_node", counts["frames_in"], len(poses), ate_cm)
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("input", type=Path, help="a dataset folder (converted to a bag once) or an MCAP bag")
+    p.add_argument("--downscale", type=float, default=4.0, help="processing size: the input divided by this")
+    p.add_argument("--preset", default="tum")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    p.add_argument("--semantics", action="store_true", help="the input has labels: the node subscribes them")
+    p.add_argument("--skip-lockstep", action="store_true", help="no lockstep run (its ATE is then not compared)")
+    p.add_argument("--no-append", action="store_true")
+    args = p.parse_args()
+    work = Path(tempfile.mkdtemp(prefix="ros-live-"))
+    try:
+        bag = bag_of(args.input, work)
+        runs = [] if args.skip_lockstep else [cli_run(args.input, work / "lockstep", args, realtime=False)]
+        runs += [cli_run(args.input, work / "realtime", args, realtime=True), ros_run(bag, args)]
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    table = markdown_table(["run", "frames in", "tracked", "tracked %", "ATE cm"], [r.row() for r in runs])
+    *lockstep, realtime, ros = runs
+    checks = [f"ROS tracked fraction {100 * (ros.fraction - realtime.fraction):+.0f} points against --realtime"]
+    if lockstep and lockstep[0].ate_cm and ros.ate_cm is not None:
+        checks.append(f"ROS ATE {ros.ate_cm / lockstep[0].ate_cm:.2f}x lockstep's")
+    text = f"{table}\n\n{'; '.join(checks)}."
+    print(text)
+    if not args.no_append:
+        sets = ", ".join(args.overrides) or "none"
+        note = (
+            f"`{args.input.name}`, preset {args.preset}, downscale {args.downscale:g}, overrides {sets}; "
+            "`bag_player` at the recorded rate into `slam_node` (shared memory, two processes)"
+        )
+        append_section(f"Live through ROS against --realtime: {args.input.name}", note + "\n\n" + text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,53 @@
+"""Records the poses a ``slam_node`` publishes, from a thread of this process (for the live benches)."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import PoseStamped
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from msg_adapters import stamp_to_ns
+from msg_adapters.pose import pose_to_c2w
+
+
+class PoseRecorder:
+    """Subscribes ``topic`` on DDS domain ``domain`` while open; ``poses``: stamp (ns) -> c2w [4, 4]."""
+
+    def __init__(self, domain: int, topic: str = "/tracking_node/pose") -> None:
+        self.poses: dict[int, np.ndarray] = {}
+        self._last_message = time.monotonic()
+        self._ctx = Context()
+        rclpy.init(context=self._ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
+        self._node = rclpy.create_node("bench_pose_recorder", context=self._ctx)
+        qos = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
+        self._node.create_subscription(PoseStamped, topic, self._on_pose, qos)
+        self._executor = SingleThreadedExecutor(context=self._ctx)
+        self._executor.add_node(self._node)
+        self._thread = threading.Thread(target=self._executor.spin, name="pose-recorder", daemon=True)
+
+    def __enter__(self) -> PoseRecorder:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._executor.shutdown()
+        self._node.destroy_node()
+        rclpy.shutdown(context=self._ctx)
+        self._thread.join(5.0)
+
+    def _on_pose(self, msg: PoseStamped) -> None:
+        self.poses[stamp_to_ns(msg.header.stamp)] = pose_to_c2w(msg.pose)  # a republished pose keeps its stamp
+        self._last_message = time.monotonic()
+
+    def wait_quiet(self, quiet_s: float) -> dict[int, np.ndarray]:
+        """The poses once none has come for ``quiet_s`` seconds."""
+        while time.monotonic() - self._last_message < quiet_s:
+            time.sleep(0.1)
+        return dict(self.poses)
