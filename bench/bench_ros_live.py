@@ -91,8 +91,9 @@ def ros_run(bag: Path, args: argparse.Namespace) -> Outcome:
     from bench.pose_recorder import PoseRecorder  # noqa: PLC0415 - rclpy only for this run
 
     domain = random.randint(1, 100)
-    overrides = "[" + ",".join(f"'{o}'" for o in args.overrides) + "]"
-    params = (f"overrides:={overrides}", "map_alignment:=optical")
+    params = ("map_alignment:=optical",)
+    if args.overrides:  # an empty list has no type a parameter can be declared with
+        params += ("overrides:=[" + ",".join(f"'{o}'" for o in args.overrides) + "]",)
     with PoseRecorder(domain) as recorder:
         counts = replay(bag, "shm", args.downscale, args.preset, args.semantics, params=params, domain=domain)
         poses = recorder.wait_quiet(5.0)

@@ -10,6 +10,11 @@ signal exits at once, without waiting for the workers.
 
 Before ``rclpy.init`` the process's DDS transport is chosen (``--transport shm|default`` before
 ``--ros-args``; shm by default: see :mod:`sgs_slam_ros.transport`).
+
+The nodes are spun by one single-threaded executor: their callbacks only hand work to the SLAM
+pipeline's threads, and rclpy's multi-threaded executor spends so much time in Python between
+callbacks that, holding the GIL, it starves those threads of it: tracking falls far behind the
+camera.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from contextlib import contextmanager
 
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
@@ -86,7 +91,7 @@ def _transport(argv: Sequence[str]) -> str:
     return apply_transport(parser.parse_args(remove_ros_args(list(argv))[1:]).transport)
 
 
-def run_nodes(build: Callable[[], Sequence[Node]], args: Sequence[str] | None = None, threads: int = 4) -> int:
+def run_nodes(build: Callable[[], Sequence[Node]], args: Sequence[str] | None = None) -> int:
     """Create the nodes with ``build`` and spin them until Ctrl-C or shutdown; returns the exit code."""
     argv = list(args) if args is not None else list(sys.argv)
     try:
@@ -95,7 +100,7 @@ def run_nodes(build: Callable[[], Sequence[Node]], args: Sequence[str] | None = 
     except RuntimeError as err:  # rclpy's RCLError: an unparsable --ros-args rule
         return _fail(argv, err)
     nodes: Sequence[Node] = ()
-    executor = MultiThreadedExecutor(num_threads=threads)
+    executor = SingleThreadedExecutor()
     stop = threading.Event()
     with stop_on_signals(stop.set):
         try:
