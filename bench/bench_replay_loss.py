@@ -21,6 +21,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -56,10 +57,12 @@ def replay(
     semantics: bool,
     params: tuple[str, ...] = (),
     domain: int | None = None,
+    before_play: Callable[[], None] | None = None,
 ) -> dict[str, int]:
     """One replay on DDS domain ``domain`` (default: a random one); the node's final counts and the frames sent.
 
-    ``params``: more ``NAME:=VALUE`` parameters of the node.
+    ``params``: more ``NAME:=VALUE`` parameters of the node; ``before_play`` is called once the node
+    is started (e.g. to wait until it spins).
     """
     domain = random.randint(1, 100) if domain is None else domain
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
@@ -87,6 +90,8 @@ def replay(
         stderr=subprocess.STDOUT,
         text=True,
     )
+    if before_play is not None:
+        before_play()
     player = subprocess.run(
         [sys.executable, "-m", "sgs_slam_ros.bag_player", str(bag), "--transport", transport, "--wait", "120"],
         env=env,

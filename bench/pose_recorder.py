@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
@@ -28,6 +29,8 @@ class PoseRecorder:
         self._node = rclpy.create_node("bench_pose_recorder", context=self._ctx)
         qos = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
         self._node.create_subscription(PoseStamped, topic, self._on_pose, qos)
+        self._spinning: set[str] = set()  # nodes whose /diagnostics came: their executor spins
+        self._node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self._executor = SingleThreadedExecutor(context=self._ctx)
         self._executor.add_node(self._node)
         self._thread = threading.Thread(target=self._executor.spin, name="pose-recorder", daemon=True)
@@ -45,6 +48,17 @@ class PoseRecorder:
     def _on_pose(self, msg: PoseStamped) -> None:
         self.poses[stamp_to_ns(msg.header.stamp)] = pose_to_c2w(msg.pose)  # a republished pose keeps its stamp
         self._last_message = time.monotonic()
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        self._spinning.update(status.name for status in msg.status)
+
+    def wait_spinning(self, node: str, timeout_s: float) -> None:
+        """Return once a /diagnostics status whose name ends with ``node`` came; raise after ``timeout_s``."""
+        end = time.monotonic() + timeout_s
+        while not any(name.endswith(node) for name in self._spinning):
+            if time.monotonic() > end:
+                raise TimeoutError(f"no /diagnostics from {node} within {timeout_s:g} s")
+            time.sleep(0.1)
 
     def wait_quiet(self, quiet_s: float) -> dict[int, np.ndarray]:
         """The poses once none has come for ``quiet_s`` seconds."""
