@@ -8,8 +8,8 @@ fingerprint of the source text, the compiler flags, the torch version and the CP
 edited source never loads a stale build. ``render.backend: torch`` never builds them (the
 pure-PyTorch kernels, :mod:`sgs_slam_core.kernels.reference`). Importing this module builds nothing.
 
-Builds of one extension are serialised across processes by an ``flock`` that the kernel releases
-when its holder dies. torch's own build lock is a plain file that a killed build leaves behind,
+Builds of one extension are serialised across processes by an ``flock``, which the operating system
+releases when its holder dies. torch's own build lock is a plain file that a killed build leaves behind,
 after which every later load waits for it forever; holding the ``flock``, such a file can only be
 stale, so it is removed.
 """
