@@ -3,10 +3,12 @@
 Each :class:`NativeExtension` is one C++ source built into its own module the first time it is
 needed (about a minute each), cached under ``TORCH_EXTENSIONS_DIR`` (default
 ``~/.cache/torch_extensions``) and loaded from there by later runs. The cache name carries a
-fingerprint of the source text, the compiler flags, the torch version and the CPU (builds target
-``-march=native``): two checkouts with different sources never rebuild each other's cache, and an
-edited source never loads a stale build. ``render.backend: torch`` never builds them (the
-pure-PyTorch kernels, :mod:`sgs_slam_core.kernels.reference`). Importing this module builds nothing.
+fingerprint of the source's path and text, the compiler flags, the torch version and the CPU (builds
+target ``-march=native``): an edited source never loads a stale build, and two checkouts never share
+a cache entry (torch's build files name the source's path, so a shared entry would be rebuilt each
+time the other checkout loads it, under the feet of a process running from it). ``render.backend:
+torch`` never builds them (the pure-PyTorch kernels, :mod:`sgs_slam_core.kernels.reference`).
+Importing this module builds nothing.
 
 Builds of one extension are serialised across processes by an ``flock``, which the operating system
 releases when its holder dies. torch's own build lock is a plain file that a killed build leaves behind,
@@ -70,7 +72,8 @@ class NativeExtension:
         digest = hashlib.sha1()
         source = read_bytes(self.source, f"the source of {self.what}", BackendUnavailableError)
         flags = " ".join((*_CFLAGS, *extra_cflags)).encode()
-        for part in (source, flags, torch.__version__.encode(), _cpu_fingerprint().encode()):
+        location = str(self.source.resolve()).encode()
+        for part in (location, source, flags, torch.__version__.encode(), _cpu_fingerprint().encode()):
             digest.update(part)
         return f"sgs_slam_{self.stem}_{digest.hexdigest()[:12]}"
 

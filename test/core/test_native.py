@@ -106,3 +106,14 @@ def test_a_build_under_way_in_another_process_is_waited_for(tmp_path, monkeypatc
         os.close(fd)
     worker.join(10)
     assert not worker.is_alive() and fake.calls == [False]
+
+
+def test_two_checkouts_never_share_a_cache_entry(tmp_path):
+    """torch's build files name the source's path: a shared entry would be rebuilt by each checkout in turn."""
+    names = []
+    for checkout in ("a", "b"):
+        src = tmp_path / checkout / "k.cpp"
+        src.parent.mkdir()
+        src.write_text("// the same text\n")
+        names.append(NativeExtension("k", src, "a kernel").cache_name())
+    assert names[0] != names[1]
