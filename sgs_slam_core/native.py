@@ -150,8 +150,14 @@ class NativeExtension:
 
 @contextmanager
 def _exclusive(path: Path) -> Iterator[None]:
-    """An exclusive ``flock`` on ``path`` (created if missing) for the ``with`` block; waits for it."""
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    """An exclusive ``flock`` on ``path`` (created if missing) for the ``with`` block; waits for it.
+
+    Raises :class:`BackendUnavailableError` when the lock file cannot be made (a read-only cache).
+    """
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as err:
+        raise BackendUnavailableError(f"cannot create the build lock {path}: {err}") from err
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
         yield
