@@ -32,6 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bags.format import is_bag
 from bench.bench_replay_loss import replay
 from bench.common import append_section, markdown_table
 from sgs_slam_core.datasets import open_dataset
@@ -54,10 +55,6 @@ class Outcome:
     def row(self) -> list[object]:
         ate_text = "n/a" if self.ate_cm is None else f"{self.ate_cm:.2f}"
         return [self.name, self.frames_in, self.tracked, f"{100 * self.fraction:.0f} %", ate_text]
-
-
-def is_bag(path: Path) -> bool:
-    return path.suffix == ".mcap" or any(path.glob("*.mcap"))
 
 
 def bag_of(source: Path, work: Path) -> Path:
