@@ -63,6 +63,8 @@ class GaussNewtonSettings:
             point-to-plane residual; 0 = depth only.
         color_channels: ``intensity`` (one channel, BT.601 luma) or ``rgb`` (three).
         semantic_scale_m: the same for a semantic feature difference of 1; 0 = no semantic term.
+        photometric_levels: the finest this many pyramid levels carry the intensity and semantic
+            terms (0 = every level); coarser levels align depth alone, which converges from farther.
         adam_steps: steps of the Adam tracker after the Gauss-Newton solve (its loss, keeping the
             best evaluated pose, so never worse than the solve by that loss); 0 = none.
         adam_lr_scale: those steps' learning rates as a fraction of ``tracking.adam.lr_*`` (the solve
@@ -78,6 +80,7 @@ class GaussNewtonSettings:
     color_scale_m: float = 0.1
     color_channels: Literal["intensity", "rgb"] = "intensity"
     semantic_scale_m: float = 0.0
+    photometric_levels: int = 0
     adam_steps: int = 0
     adam_lr_scale: float = 0.25
 
@@ -99,6 +102,7 @@ class GaussNewtonSettings:
             damping=self.damping,
             color_scale_m=self.color_scale_m,
             semantic_scale_m=self.semantic_scale_m,
+            photometric_levels=self.photometric_levels,
             adam_steps=self.adam_steps,
         )
 

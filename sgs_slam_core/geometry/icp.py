@@ -13,6 +13,7 @@ waits for the GPU.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -25,7 +26,9 @@ from sgs_slam_core.geometry.camera import Intrinsics, vertex_map
 from sgs_slam_core.geometry.se3 import se3_exp
 
 __all__ = [
+    "IcpKernels",
     "IcpLevel",
+    "IcpLevelKernel",
     "IcpResult",
     "IcpSettings",
     "IcpTerms",
@@ -52,6 +55,22 @@ class IcpTerms(Protocol):
     ) -> Tensor:  # [53] float64: normal matrix [49], truncated cost, correspondences, their sum r^2, source points
         """The terms at ``src_to_ref``."""
         ...
+
+
+class IcpLevelKernel(Protocol):
+    """One reference level's packed rows in one call (a compiled form of this module's ``_level``)."""
+
+    def __call__(self, depth: Tensor, intrinsics: Intrinsics, min_normal_cos: float) -> Tensor:
+        """``depth`` [H, W] m, 0 = invalid -> [H * W, 7] rows as :attr:`IcpLevel.packed`."""
+        ...
+
+
+@dataclass(frozen=True)
+class IcpKernels:
+    """Compiled forms of this module's per-step and per-level work; None where its PyTorch code runs."""
+
+    terms: IcpTerms | None = None
+    level: IcpLevelKernel | None = None
 
 
 _MIN_NORMAL_COS = 0.1  # a normal at more than ~84 degrees to its viewing ray spans a depth edge
@@ -169,12 +188,19 @@ def _scales(depth: Tensor, intrinsics: Intrinsics, levels: int) -> list[tuple[Te
     return out[::-1]
 
 
-def icp_pyramid(depth: Tensor, intrinsics: Intrinsics, levels: int) -> list[IcpLevel]:  # depth [H, W] m, 0 = invalid
+def icp_pyramid(
+    depth: Tensor,  # [H, W] m, 0 = invalid
+    intrinsics: Intrinsics,
+    levels: int,
+    kernel: IcpLevelKernel | None = None,  # the kernels' compiled level (``IcpKernels.level``), else PyTorch's
+) -> list[IcpLevel]:
     """Vertex and normal maps of ``depth`` at ``levels`` scales, coarsest first (the reference side).
 
     ``levels`` is ``len(settings.steps_for(width))``.
     """
-    return [_level(d, k) for d, k in _scales(depth, intrinsics, levels)]
+    if kernel is None:
+        return [_level(d, k) for d, k in _scales(depth, intrinsics, levels)]
+    return [IcpLevel(k, kernel(d, k, _MIN_NORMAL_COS)) for d, k in _scales(depth, intrinsics, levels)]
 
 
 def _blur(image: Tensor) -> Tensor:  # [1, C, H, W] -> [1, C, H, W]
@@ -369,8 +395,9 @@ def align_device(
     reference: list[IcpLevel],  # icp_pyramid of the reference frame, same intrinsics and level count
     init_src_to_ref: Tensor,  # [4, 4] float64
     s: IcpSettings,
-    channels: list[Tensor] | None = None,  # source_channels of the source frame, when the reference has channels
-    terms: IcpTerms | None = None,  # the kernels' one-call step terms (``Kernels.icp_terms``), else PyTorch's
+    channels: Sequence[Tensor | None]
+    | None = None,  # source_channels per level, where its reference level has channels
+    terms: IcpTerms | None = None,  # the kernels' one-call step terms (``IcpKernels.terms``), else PyTorch's
 ) -> DeviceAlignment:
     """:func:`align_depth` without reading the result back (fixed shapes throughout, no host wait)."""
     iterations = s.steps_for(intrinsics.width)
@@ -436,9 +463,10 @@ def align_depth(
     reference: list[IcpLevel],  # icp_pyramid of the reference frame, same intrinsics and level count
     init_src_to_ref: Tensor,  # [4, 4] float64
     s: IcpSettings,
+    terms: IcpTerms | None = None,  # the kernels' one-call step terms (``IcpKernels.terms``), else PyTorch's
 ) -> IcpResult:
     """Refine ``init_src_to_ref`` so the source depth lies on the reference surface (one host read)."""
-    result = align_device(depth, intrinsics, reference, init_src_to_ref, s)
+    result = align_device(depth, intrinsics, reference, init_src_to_ref, s, terms=terms)
     count_f, sq_f, total_f = torch.stack([result.inliers, result.sum_sq_m2, result.valid_source]).tolist()
     rms = (sq_f / count_f) ** 0.5 if count_f > 0 else float("inf")
     return IcpResult(result.src_to_ref, count_f / total_f if total_f > 0 else 0.0, rms)

@@ -1,4 +1,4 @@
-"""The device kernels' interface: rendering, the SLAM's losses and the Gauss-Newton terms.
+"""The device kernels' interface: rendering, the SLAM's losses and the ICP's parts.
 
 One :class:`Kernels` object per (render settings, device), built by :func:`sgs_slam_core.kernels.build_kernels`,
 runs every heavy per-frame operation. Three implementations: the pure-PyTorch reference
@@ -17,7 +17,7 @@ from torch import Tensor
 
 from sgs_slam_core.errors import BackendUnavailableError, ShapeError
 from sgs_slam_core.geometry.camera import Intrinsics
-from sgs_slam_core.geometry.icp import IcpTerms
+from sgs_slam_core.geometry.icp import IcpKernels
 from sgs_slam_core.render.settings import RenderSettings
 
 if TYPE_CHECKING:
@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from sgs_slam_core.kernels.losses import TrackingLoss
     from sgs_slam_core.render.output import RenderOutput
 
-__all__ = ["IcpTerms", "Kernels"]
+__all__ = ["IcpKernels", "Kernels"]
 
 
 class Kernels(ABC):
@@ -36,12 +36,12 @@ class Kernels(ABC):
     Attributes:
         name: ``torch`` (the pure-PyTorch reference), ``cpu`` (compiled) or ``gsplat`` (CUDA).
         settings: the splatting constants every render uses.
-        icp_terms: the Gauss-Newton step's terms in one call, or None where ``geometry.icp``'s
-            PyTorch steps run.
+        icp: compiled forms of ``geometry.icp``'s step and pyramid level (None where its PyTorch
+            code runs).
     """
 
     name: str
-    icp_terms: IcpTerms | None = None
+    icp: IcpKernels = IcpKernels()
 
     def __init__(self, settings: RenderSettings, device: torch.device) -> None:
         self.settings, self.device = settings, device

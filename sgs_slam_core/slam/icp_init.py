@@ -9,7 +9,7 @@ import torch
 from torch import Tensor
 
 from sgs_slam_core.geometry.camera import Intrinsics
-from sgs_slam_core.geometry.icp import IcpLevel, IcpSettings, align_depth, icp_pyramid
+from sgs_slam_core.geometry.icp import IcpKernels, IcpLevel, IcpSettings, align_depth, icp_pyramid
 from sgs_slam_core.profiling import stage
 
 __all__ = ["IcpInit", "IcpOutcome"]
@@ -38,8 +38,10 @@ class IcpInit:
     Used by one tracking thread; ``Slam.reset`` (and so a map load) makes a fresh one.
     """
 
-    def __init__(self, settings: IcpSettings, min_inliers: float) -> None:
+    def __init__(self, settings: IcpSettings, min_inliers: float, kernels: IcpKernels | None = None) -> None:
+        """``kernels``: the ICP's compiled parts (``Kernels.icp``); None = ``geometry.icp``'s PyTorch code."""
         self.settings, self.min_inliers = settings, min_inliers
+        self.kernels = kernels or IcpKernels()
         self._reference: _Reference | None = None
 
     def remember(self, depth: Tensor, intrinsics: Intrinsics, c2w: np.ndarray) -> None:  # depth [H, W] m
@@ -60,8 +62,9 @@ class IcpInit:
         init = torch.as_tensor(np.linalg.inv(ref.c2w) @ predicted_c2w, dtype=torch.float64, device=depth.device)
         with stage("icp"):
             if ref.levels is None:
-                ref.levels = icp_pyramid(ref.depth, ref.intrinsics, len(self.settings.steps_for(intrinsics.width)))
-            result = align_depth(depth, intrinsics, ref.levels, init, self.settings)
+                levels = len(self.settings.steps_for(intrinsics.width))
+                ref.levels = icp_pyramid(ref.depth, ref.intrinsics, levels, self.kernels.level)
+            result = align_depth(depth, intrinsics, ref.levels, init, self.settings, self.kernels.terms)
         used = result.inlier_fraction >= self.min_inliers and np.isfinite(result.rms_m)
         outcome = IcpOutcome(used, result.inlier_fraction, result.rms_m)
         if not used:

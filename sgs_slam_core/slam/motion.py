@@ -9,6 +9,7 @@ import torch
 
 from sgs_slam_core.config.sections import MotionSettings
 from sgs_slam_core.frame_data import FrameTensors
+from sgs_slam_core.geometry.icp import IcpKernels
 from sgs_slam_core.slam.icp_init import IcpInit
 from sgs_slam_core.slam.pose import predict_constant_velocity
 
@@ -18,14 +19,17 @@ __all__ = ["MotionModel"]
 class MotionModel:
     """The motion prior of one run: the poses it has seen, the camera's frame interval, the ICP reference."""
 
-    def __init__(self, settings: MotionSettings, initial_c2w: np.ndarray) -> None:
+    def __init__(
+        self, settings: MotionSettings, initial_c2w: np.ndarray, icp_kernels: IcpKernels | None = None
+    ) -> None:
+        """``icp_kernels``: the ICP's compiled parts (``Kernels.icp``); None = ``geometry.icp``'s PyTorch code."""
         self.settings = settings
         self.initial_c2w = initial_c2w
         self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=2)  # (stamp_ns, c2w) of this run
         self._resumed: list[np.ndarray] = []  # last two c2w of a loaded map: it goes on moving
         self._min_interval_ns: int | None = None  # shortest stamp gap between two tracked frames
         icp = settings.icp
-        self._icp = None if icp is None else IcpInit(icp, settings.icp_min_inliers)
+        self._icp = None if icp is None else IcpInit(icp, settings.icp_min_inliers, icp_kernels)
 
     def resume(self, poses: list[np.ndarray]) -> None:
         """Continue from a saved run's last poses (c2w [4, 4], oldest first)."""

@@ -85,8 +85,8 @@ class Slam:
         c = self.config
         self.initial_c2w = np.eye(4) if self.given_c2w is None else self.given_c2w.copy()
         self.map_frame = MapFramePolicy(c.map_frame)
-        self.motion = MotionModel(c.motion, self.initial_c2w)
         self.kernels = build_kernels(c.render, self.device)  # render, losses and steps for this device, chosen once
+        self.motion = MotionModel(c.motion, self.initial_c2w, self.kernels.icp)
         self.tracker = build_tracker(c.tracking, self.kernels)
         self.guard = TrackingGuard(c.guard)
         self.keyframes = KeyframeStore(c.keyframes)  # capped: the best-covered view leaves

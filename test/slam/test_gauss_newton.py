@@ -95,11 +95,23 @@ def test_every_term_alone_and_the_adam_polish_move_towards_the_truth():
         "colour and semantics": GaussNewtonSettings(iterations=(6,), min_width=8, semantic_scale_m=0.05),
         "rgb": GaussNewtonSettings(iterations=(6,), min_width=8, color_channels="rgb"),
         "adam polish": GaussNewtonSettings(iterations=(6,), min_width=8, adam_steps=3),
+        "colour on the finest level": GaussNewtonSettings(iterations=(4, 4), min_width=8, photometric_levels=1),
     }
     for name, gn in variants.items():
         s = TrackingSettings(method="gauss_newton", sil_threshold=0.99, gauss_newton=gn)
         result = GaussNewtonTracker(s, TORCH).track(gm, frame, start, True)
         assert np.linalg.norm(result.w2c[:3, 3]) < 0.3 * np.linalg.norm(start[:3, 3]), name
+
+
+def test_coarse_levels_align_depth_alone_below_the_photometric_levels():
+    gm, frame = target_frame(width=64, height=48)
+    with torch.no_grad():
+        out = render(gm, frame.intrinsics, torch.eye(4), SETTINGS)
+    for keep, expected in ((0, [1, 1, 1]), (1, [0, 0, 1]), (2, [0, 1, 1]), (5, [1, 1, 1])):
+        gn = GaussNewtonSettings(iterations=(2, 2, 2), min_width=8, photometric_levels=keep)
+        tracker = GaussNewtonTracker(TrackingSettings(method="gauss_newton", gauss_newton=gn), TORCH)
+        levels = tracker._reference(out, frame.intrinsics, 3, semantic=False)
+        assert [level.num_channels for level in levels] == expected, keep
 
 
 def test_an_empty_map_keeps_the_prediction():
@@ -121,6 +133,7 @@ def test_the_method_is_a_config_value_with_checked_settings():
         "tracking.gauss_newton.color_scale_m=-1",
         "tracking.gauss_newton.color_channels=hsv",
         "tracking.gauss_newton.adam_lr_scale=0",
+        "tracking.gauss_newton.photometric_levels=-1",
     ):
         with pytest.raises(ConfigError, match="tracking"):
             load_config("tum", overrides=[bad])
@@ -137,6 +150,29 @@ def test_slam_with_the_gauss_newton_tracker_follows_the_tiny_scene(tiny_scene):
         errors.append(np.linalg.norm(step.c2w[:3, 3] - slam._gt_in_map_frame(tiny[i].gt_c2w)[:3, 3]))
     assert max(errors) < 0.09 and np.mean(errors) < 0.06, errors
     assert step.track.result.renders == 2 and step.track.result.iterations == 3  # one 64-pixel level: 3 steps
+
+
+def test_the_compiled_level_matches_the_pytorch_reference():
+    """Vertices, normals and validity of cpu/gauss_newton.cpp's level against geometry/icp.py's tensors."""
+    from sgs_slam_core.geometry import icp
+    from sgs_slam_core.kernels.cpu.extensions import GAUSS_NEWTON
+    from sgs_slam_core.kernels.cpu.gauss_newton import icp_level
+
+    if not GAUSS_NEWTON.is_available():
+        pytest.skip(GAUSS_NEWTON.unavailable_reason())
+    gm, frame = target_frame()
+    k = frame.intrinsics
+    with torch.no_grad():
+        out = render(gm, k, se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.01, 0.0, 0.02])), SETTINGS)
+    depth = torch.where(out.silhouette > 0.99, out.depth, 0.0)
+    depth[::7, ::5] = float("nan")  # invalid pixels inside the surface: their neighbours lose their normals
+    for fast, slow in zip(icp.icp_pyramid(depth, k, 3, icp_level), icp.icp_pyramid(depth, k, 3), strict=True):
+        assert fast.intrinsics == slow.intrinsics and fast.packed.shape == slow.packed.shape
+        both = fast.valid & slow.valid
+        assert slow.valid.sum() > 100 and (fast.valid != slow.valid).float().mean() < 1e-3
+        assert torch.allclose(fast.vertices, torch.nan_to_num(slow.vertices), atol=1e-6)
+        assert torch.allclose(fast.normals[both], slow.normals[both], atol=1e-5)
+        assert not fast.normals[~fast.valid].any()
 
 
 def test_the_compiled_step_matches_the_pytorch_reference():

@@ -8,6 +8,7 @@ import torch
 from sgs_slam_core.config import load_config
 from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.errors import BackendUnavailableError
+from sgs_slam_core.geometry.icp import IcpKernels
 from sgs_slam_core.kernels import build_kernels, factory
 from sgs_slam_core.kernels.cpu.extensions import EXTENSIONS
 from sgs_slam_core.native import NativeExtension
@@ -31,7 +32,7 @@ def test_the_reference_backend_never_touches_a_compiled_kernel(tiny_scene, monke
     slam.prepare(lambda line: pytest.fail(f"announced {line!r}"))
     for i in range(3):
         slam.process(tiny[i])
-    assert slam.kernels.name == "torch" and slam.kernels.icp_terms is None
+    assert slam.kernels.name == "torch" and slam.kernels.icp == IcpKernels()
     assert slam.render_view(tiny[2].gt_c2w).backend == "torch"
 
 
@@ -51,4 +52,9 @@ def test_named_backends_that_cannot_run_raise():
 @pytest.mark.skipif(not all(ext.is_available() for ext in EXTENSIONS), reason="no compiler")
 def test_auto_on_the_cpu_is_the_compiled_kernels_everywhere():
     kernels = build_kernels(RenderSettings(), "cpu")
-    assert kernels.name == "cpu" and kernels.icp_terms is not None and kernels.direct_mapping(True)
+    assert (
+        kernels.name == "cpu"
+        and kernels.icp.terms is not None
+        and kernels.icp.level is not None
+        and kernels.direct_mapping(True)
+    )

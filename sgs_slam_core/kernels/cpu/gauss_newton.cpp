@@ -146,7 +146,58 @@ torch::Tensor gauss_newton_terms(torch::Tensor pose, torch::Tensor points, torch
   return out;
 }
 
+// One reference pyramid level, as geometry/icp.py's `_level` packs it (its pure-PyTorch reference):
+// per pixel the camera-frame vertex, the unit normal facing the camera from central differences
+// inside a one-pixel border (every neighbour valid, |cos| to the viewing ray above min_cos), and
+// its validity. One thread: a level is a few thousand pixels.
+torch::Tensor vertex_normal_level(torch::Tensor depth, double fx, double fy, double cx, double cy,
+                                  double min_cos) {
+  TORCH_CHECK(depth.dim() == 2 && depth.scalar_type() == torch::kFloat32, "depth must be [H, W] float32");
+  depth = depth.contiguous();
+  const int64_t h = depth.size(0), w = depth.size(1);
+  auto out = torch::zeros({h * w, 7}, depth.options());
+  const float* d = depth.data_ptr<float>();
+  float* o = out.data_ptr<float>();
+  const float ffx = static_cast<float>(fx), ffy = static_cast<float>(fy);
+  const float fcx = static_cast<float>(cx), fcy = static_cast<float>(cy);
+  for (int64_t v = 0; v < h; ++v)
+    for (int64_t u = 0; u < w; ++u) {
+      const float z = d[v * w + u];
+      float* row = o + (v * w + u) * 7;
+      if (!(std::isfinite(z) && z > 0.0f)) continue;
+      row[0] = (static_cast<float>(u) - fcx) / ffx * z;
+      row[1] = (static_cast<float>(v) - fcy) / ffy * z;
+      row[2] = z;
+    }
+  for (int64_t v = 1; v + 1 < h; ++v)
+    for (int64_t u = 1; u + 1 < w; ++u) {
+      const float* c = o + (v * w + u) * 7;
+      const float* l = c - 7;
+      const float* r = c + 7;
+      const float* t = c - 7 * w;
+      const float* b = c + 7 * w;
+      if (!(c[2] > 0 && l[2] > 0 && r[2] > 0 && t[2] > 0 && b[2] > 0)) continue;
+      const float dx[3] = {r[0] - l[0], r[1] - l[1], r[2] - l[2]};
+      const float dy[3] = {b[0] - t[0], b[1] - t[1], b[2] - t[2]};
+      float n[3] = {dx[1] * dy[2] - dx[2] * dy[1], dx[2] * dy[0] - dx[0] * dy[2], dx[0] * dy[1] - dx[1] * dy[0]};
+      const float norm = std::max(std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), 1e-12f);
+      for (float& x : n) x /= norm;
+      const float dist = std::max(std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]), 1e-12f);
+      const float cos = (n[0] * c[0] + n[1] * c[1] + n[2] * c[2]) / dist;
+      if (!(std::fabs(cos) > static_cast<float>(min_cos))) continue;
+      const float flip = cos > 0 ? -1.0f : 1.0f;  // towards the camera
+      float* row = o + (v * w + u) * 7;
+      row[3] = n[0] * flip;
+      row[4] = n[1] * flip;
+      row[5] = n[2] * flip;
+      row[6] = 1.0f;
+    }
+  return out;
+}
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("gauss_newton_terms", &gauss_newton_terms, py::call_guard<py::gil_scoped_release>(),
         "Normal equations and truncated cost of one Gauss-Newton step (see the file's header)");
+  m.def("vertex_normal_level", &vertex_normal_level, py::call_guard<py::gil_scoped_release>(),
+        "One ICP reference level's packed vertex, normal and validity rows");
 }

@@ -1,7 +1,9 @@
-"""The Gauss-Newton step's terms in one compiled pass (``gauss_newton.cpp``), as ``geometry.icp`` computes them.
+"""The ICP's compiled parts (``gauss_newton.cpp``), as ``geometry.icp`` computes them.
 
-One pass over the source points gives the step's normal equations and the truncated cost that
-``geometry.icp`` computes with a dozen tensor operations per step; tests compare the two.
+One pass over the source points gives a Gauss-Newton step's normal equations and the truncated
+cost that ``geometry.icp`` computes with a dozen tensor operations per step; one pass over a depth
+image gives a reference level's vertices and normals (two dozen operations there). Tests compare
+each with its PyTorch form.
 """
 
 from __future__ import annotations
@@ -9,9 +11,10 @@ from __future__ import annotations
 from torch import Tensor
 
 from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.geometry.icp import IcpKernels
 from sgs_slam_core.kernels.cpu.extensions import GAUSS_NEWTON
 
-__all__ = ["icp_terms"]
+__all__ = ["ICP_KERNELS", "icp_level", "icp_terms"]
 
 
 def icp_terms(
@@ -34,3 +37,12 @@ def icp_terms(
     return GAUSS_NEWTON.module().gauss_newton_terms(
         src_to_ref, points, channels, packed, *camera, max_distance_m, huber_m, 1
     )
+
+
+def icp_level(depth: Tensor, intrinsics: Intrinsics, min_normal_cos: float) -> Tensor:
+    """``depth`` [H, W] m (0 = invalid, CPU) -> the level's packed rows [H * W, 7] float32 (one thread)."""
+    k = intrinsics
+    return GAUSS_NEWTON.module().vertex_normal_level(depth.float(), k.fx, k.fy, k.cx, k.cy, min_normal_cos)
+
+
+ICP_KERNELS = IcpKernels(icp_terms, icp_level)

@@ -12,7 +12,7 @@ from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.kernels.cpu import losses
 from sgs_slam_core.kernels.cpu.extensions import EXTENSIONS
-from sgs_slam_core.kernels.cpu.gauss_newton import icp_terms
+from sgs_slam_core.kernels.cpu.gauss_newton import ICP_KERNELS
 from sgs_slam_core.kernels.cpu.mapping_step import mapping_step_grads
 from sgs_slam_core.kernels.cpu.render import composite_cpu, render_world_isotropic_cpu
 from sgs_slam_core.kernels.reference import project_with_depth
@@ -28,10 +28,10 @@ __all__ = ["CpuKernels"]
 
 
 class CpuKernels(Kernels):
-    """C++ with OpenMP for CPU tensors: rendering, the losses, the direct mapping step, the Gauss-Newton terms."""
+    """C++ with OpenMP for CPU tensors: rendering, the losses, the direct mapping step, the ICP's parts."""
 
     name = "cpu"
-    icp_terms = staticmethod(icp_terms)
+    icp = ICP_KERNELS
 
     def prepare(self, announce: Callable[[str], None]) -> None:
         """Build or load the three extensions (about a minute each the first time on a machine)."""

@@ -90,14 +90,14 @@ class GaussNewtonTracker:
         levels = len(self.icp.steps_for(k.width))
         depth = torch.where(frame.valid, frame.depth, 0.0)
         channels = self._channels(frame.rgb, frame.semantic if semantic else None)
-        sources = None if channels is None else source_channels(channels, levels)
+        sources = None if channels is None else self._photometric(source_channels(channels, levels))
         eye = torch.eye(4, dtype=torch.float64, device=w2c.device)
         for _ in range(self.gn.renders):
             with stage("track.render"):
                 out = self.kernels.render(gaussians, k, w2c.float(), with_semantics=semantic)
             with stage("track.solve"):
                 reference = self._reference(out, k, levels, semantic)
-                aligned = align_device(depth, k, reference, eye, self.icp, sources, self.kernels.icp_terms)
+                aligned = align_device(depth, k, reference, eye, self.icp, sources, self.kernels.icp.terms)
                 w2c = se3_inverse(aligned.src_to_ref) @ w2c  # the frame's camera -> the rendered camera
         return w2c
 
@@ -109,12 +109,20 @@ class GaussNewtonTracker:
         """
         confident = (out.silhouette > self.settings.sil_threshold) & torch.isfinite(out.depth)
         depth = torch.where(confident, out.depth, 0.0)
-        geometry = icp_pyramid(depth, k, levels)
+        geometry = icp_pyramid(depth, k, levels, self.kernels.icp.level)
         channels = self._channels(out.color, out.semantic if semantic else None)
         if channels is None:
             return geometry
-        images = channel_pyramid(channels, confident, levels)
-        return [level.with_channels(image) for level, image in zip(geometry, images, strict=True)]
+        images = self._photometric(channel_pyramid(channels, confident, levels))
+        return [
+            level if image is None else level.with_channels(image)
+            for level, image in zip(geometry, images, strict=True)
+        ]
+
+    def _photometric(self, levels: list[Tensor]) -> list[Tensor | None]:
+        """Per pyramid level (coarsest first), its channels where it carries the photometric terms, else None."""
+        keep = self.gn.photometric_levels or len(levels)
+        return [None if i < len(levels) - keep else level for i, level in enumerate(levels)]
 
     def _channels(self, rgb: Tensor, semantic: Tensor | None) -> Tensor | None:  # [H, W, 3], [H, W, S] -> [H, W, C]
         """Intensity and semantic features scaled to metres of residual; None when both terms are off."""
