@@ -31,6 +31,7 @@ __all__ = [
     "IcpLevelKernel",
     "IcpResult",
     "IcpSettings",
+    "IcpSteps",
     "IcpTerms",
     "align_depth",
     "align_device",
@@ -57,6 +58,22 @@ class IcpTerms(Protocol):
         ...
 
 
+class IcpSteps(Protocol):
+    """A level's Gauss-Newton steps in one call (a compiled form of this module's step loop)."""
+
+    def __call__(
+        self,
+        src_to_ref: Tensor,  # [4, 4] float64
+        points: Tensor,  # [N, 3] float32 source points, z = 0 where invalid
+        values: Tensor | None,  # [N, C] float32 source channels
+        ref: IcpLevel,
+        s: IcpSettings,
+        steps: int,
+    ) -> Tensor:  # [4, 4] float64
+        """The pose after ``steps`` damped Gauss-Newton updates against ``ref``."""
+        ...
+
+
 class IcpLevelKernel(Protocol):
     """One reference level's packed rows in one call (a compiled form of this module's ``_level``)."""
 
@@ -70,6 +87,7 @@ class IcpKernels:
     """Compiled forms of this module's per-step and per-level work; None where its PyTorch code runs."""
 
     terms: IcpTerms | None = None
+    steps: IcpSteps | None = None
     level: IcpLevelKernel | None = None
 
 
@@ -395,9 +413,8 @@ def align_device(
     reference: list[IcpLevel],  # icp_pyramid of the reference frame, same intrinsics and level count
     init_src_to_ref: Tensor,  # [4, 4] float64
     s: IcpSettings,
-    channels: Sequence[Tensor | None]
-    | None = None,  # source_channels per level, where its reference level has channels
-    terms: IcpTerms | None = None,  # the kernels' one-call step terms (``IcpKernels.terms``), else PyTorch's
+    channels: Sequence[Tensor | None] | None = None,  # source_channels per level, where its reference has channels
+    kernels: IcpKernels | None = None,  # compiled parts (``Kernels.icp``); None = this module's PyTorch code
 ) -> DeviceAlignment:
     """:func:`align_depth` without reading the result back (fixed shapes throughout, no host wait)."""
     iterations = s.steps_for(intrinsics.width)
@@ -405,6 +422,7 @@ def align_device(
         raise ShapeError(f"reference pyramid has {len(reference)} levels, settings ask for {len(iterations)}")
     if channels is not None and len(channels) != len(iterations):
         raise ShapeError(f"source channels have {len(channels)} levels, settings ask for {len(iterations)}")
+    kernels = kernels or IcpKernels()
     init = pose = init_src_to_ref.to(device=depth.device, dtype=torch.float64)
     points = []
     for i, ((d, k), ref, steps) in enumerate(
@@ -414,15 +432,15 @@ def align_device(
             raise ShapeError(f"source level is {k.shape}, reference level {ref.intrinsics.shape}")
         points.append(vertex_map(d, k).reshape(-1, 3))
         values = None if channels is None else channels[i]
+        if kernels.steps is not None:
+            pose = kernels.steps(pose, points[-1], values, ref, s, steps)
+            continue
         for _ in range(steps):
-            if terms is None:
-                pose = _gauss_newton_step(pose, points[-1], ref, s, values)
-            else:
-                pose = _solve(_terms(terms, pose, points[-1], values, ref, s)[:49].reshape(7, 7), pose, s)
+            pose = _gauss_newton_step(pose, points[-1], ref, s, values)
     values = None if channels is None else channels[-1]
-    if terms is None:
+    if kernels.terms is None:
         return _keep_better(init, pose, points[-1], values, reference[-1], s)
-    start, end = (_terms(terms, p, points[-1], values, reference[-1], s)[49:] for p in (init, pose))
+    start, end = (_terms(kernels.terms, p, points[-1], values, reference[-1], s)[49:] for p in (init, pose))
     worse = end[0] > start[0]
     stats = torch.where(worse, start, end)
     return DeviceAlignment(torch.where(worse, init, pose), stats[1], stats[2], stats[3])
@@ -463,10 +481,10 @@ def align_depth(
     reference: list[IcpLevel],  # icp_pyramid of the reference frame, same intrinsics and level count
     init_src_to_ref: Tensor,  # [4, 4] float64
     s: IcpSettings,
-    terms: IcpTerms | None = None,  # the kernels' one-call step terms (``IcpKernels.terms``), else PyTorch's
+    kernels: IcpKernels | None = None,  # compiled parts (``Kernels.icp``); None = this module's PyTorch code
 ) -> IcpResult:
     """Refine ``init_src_to_ref`` so the source depth lies on the reference surface (one host read)."""
-    result = align_device(depth, intrinsics, reference, init_src_to_ref, s, terms=terms)
+    result = align_device(depth, intrinsics, reference, init_src_to_ref, s, kernels=kernels)
     count_f, sq_f, total_f = torch.stack([result.inliers, result.sum_sq_m2, result.valid_source]).tolist()
     rms = (sq_f / count_f) ** 0.5 if count_f > 0 else float("inf")
     return IcpResult(result.src_to_ref, count_f / total_f if total_f > 0 else 0.0, rms)

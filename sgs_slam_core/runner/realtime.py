@@ -17,7 +17,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -103,7 +103,7 @@ class _Replay:
 
     def __init__(self, slam: Slam, dataset: Dataset, on_tracked: Callable[[Frame, StepResult], None] | None) -> None:
         self.slam, self.dataset, self.on_tracked = slam, dataset, on_tracked
-        # by dataset index: ground truth c2w [4, 4] (or None) and the outcome without its frame tensors
+        # by dataset index: ground truth c2w [4, 4] (or None) and the outcome without its tensors
         # (the mapper still has those; kept here they would add a frame's images per tracked frame)
         self.tracked: dict[int, tuple[np.ndarray | None, TrackOutcome]] = {}
         self.mapped: dict[int, MapOutcome] = {}
@@ -115,7 +115,7 @@ class _Replay:
 
     def on_pose(self, frame: Frame, outcome: TrackOutcome) -> None:  # tracking thread
         with self.lock:
-            self.tracked[frame.index] = (frame.gt_c2w, replace(outcome, frame_data=None))
+            self.tracked[frame.index] = (frame.gt_c2w, outcome.without_tensors())
         self.news.put((frame, outcome))
 
     def on_map(self, frame: Frame, outcome: TrackOutcome, result: MapOutcome) -> None:  # mapping thread

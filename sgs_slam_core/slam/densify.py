@@ -156,6 +156,8 @@ def densify_frame(
     data: FrameTensors,
     frame: Frame,  # the same frame on the host (a lower densification resolution resizes it)
     c2w: np.ndarray,  # [4, 4] its estimated pose
+    *,
+    rendered: RenderOutput | None = None,  # ``gaussians`` already rendered from ``c2w``
     settings: DensifySettings,
     kernels: Kernels,
     codec: SemanticCodec,
@@ -168,9 +170,10 @@ def densify_frame(
     if len(gaussians) == 0:
         mask = data.valid
     else:
-        with torch.no_grad():
-            out = kernels.render(gaussians, data.intrinsics, se3_inverse(c2w_t), with_semantics=False)
-        mask = densify_mask(out, data, settings)
+        if rendered is None:
+            with torch.no_grad():
+                rendered = kernels.render(gaussians, data.intrinsics, se3_inverse(c2w_t), with_semantics=False)
+        mask = densify_mask(rendered, data, settings)
     source = data
     if settings.resolution_scale < 1.0:
         rgb, depth, labels, k = resize_arrays(

@@ -64,7 +64,7 @@ class IcpInit:
             if ref.levels is None:
                 levels = len(self.settings.steps_for(intrinsics.width))
                 ref.levels = icp_pyramid(ref.depth, ref.intrinsics, levels, self.kernels.level)
-            result = align_depth(depth, intrinsics, ref.levels, init, self.settings, self.kernels.terms)
+            result = align_depth(depth, intrinsics, ref.levels, init, self.settings, self.kernels)
         used = result.inlier_fraction >= self.min_inliers and np.isfinite(result.rms_m)
         outcome = IcpOutcome(used, result.inlier_fraction, result.rms_m)
         if not used:

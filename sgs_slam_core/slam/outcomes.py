@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -32,6 +32,11 @@ class TrackOutcome:
     def failed(self) -> bool:
         """True when the failure guard rejected the frame."""
         return self.failure_reason is not None
+
+    def without_tensors(self) -> TrackOutcome:
+        """This outcome without the frame's tensors and the tracker's rendering, to keep once mapped."""
+        result = None if self.result is None else replace(self.result, rendering=None)
+        return replace(self, frame_data=None, result=result)
 
 
 @dataclass(frozen=True)

@@ -120,7 +120,7 @@ class Slam:
         """Track the frame, then densify, select the window, map, and maybe keep it as a keyframe."""
         tracked = self.track(frame)
         mapped = self.map(frame, tracked)
-        return StepResult(tracked, mapped, self.num_gaussians)
+        return StepResult(tracked.without_tensors(), mapped, self.num_gaussians)  # kept by callers: no images
 
     def track(self, frame: Frame, newer_frame_waiting: Callable[[], bool] | None = None) -> TrackOutcome:
         """Estimate the pose of ``frame`` against the current map (a run's first frame gets the map frame's pose).
@@ -184,8 +184,10 @@ class Slam:
         data = tracked.frame_data or self._frame_tensors(frame, tracked.index)
         data = data.with_ignore(self.edits.ignore_mask(data.labels))  # the locks now: an edit may have come since
         use_sem = frame.labels is not None
+        rendering = tracked.result.rendering if tracked.result is not None else None
+        rendered = rendering.out if rendering is not None and rendering.gaussians is self.gaussians else None
         with stage("densify"):
-            gaussians, added = self._densified(data, frame, tracked.c2w)
+            gaussians, added = self._densified(data, frame, tracked.c2w, rendered)
         timings["densify"] = time.perf_counter() - t0
         stats, window = None, None
         if self._mapping_due(tracked.index):
@@ -205,13 +207,19 @@ class Slam:
         timings["map"] = time.perf_counter() - t0
         return MapOutcome(stats, window, keyframe, added, timings["map"], timings)
 
-    def _densified(self, data: FrameTensors, frame: Frame, c2w: np.ndarray) -> tuple[GaussianMap, int]:
-        """The map with Gaussians added where it does not explain ``frame`` seen from ``c2w`` [4, 4]; how many."""
+    def _densified(
+        self, data: FrameTensors, frame: Frame, c2w: np.ndarray, rendered: RenderOutput | None
+    ) -> tuple[GaussianMap, int]:
+        """The map with Gaussians added where it does not explain ``frame`` seen from ``c2w`` [4, 4]; how many.
+
+        ``rendered``: the map already rendered from ``c2w`` (tracking's last rendering), or None.
+        """
         return densify_frame(
             self.gaussians,
             data,
             frame,
             c2w,
+            rendered=rendered,
             settings=self.config.densify,
             kernels=self.kernels,
             codec=self.codec,

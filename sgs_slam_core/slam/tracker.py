@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -16,10 +16,19 @@ from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.kernels.losses import TrackingLoss
 from sgs_slam_core.profiling import stage
+from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.slam.adam import FusedAdam
 from sgs_slam_core.slam.pose import PoseParameters
 
-__all__ = ["TrackResult", "track"]
+__all__ = ["TrackRendering", "TrackResult", "track"]
+
+
+@dataclass(frozen=True)
+class TrackRendering:
+    """The map as tracking last rendered it, at the result's pose (densification reuses it)."""
+
+    gaussians: GaussianMap  # the map version that was rendered: reusable while it is still the map
+    out: RenderOutput
 
 
 @dataclass(frozen=True)
@@ -35,6 +44,7 @@ class TrackResult:
     valid_fraction: float  # fraction of pixels in the loss mask at the best pose
     time_s: float
     renders: int = 0  # renderings of the map this frame took (0 = as many as iterations)
+    rendering: TrackRendering | None = field(default=None, repr=False, compare=False)  # at ``w2c``, if one was
 
 
 def track(

@@ -97,3 +97,50 @@ def test_slam_holds_no_locks_or_threads():
     slam = Slam(load_config("synthetic", None, [*FAST_SLAM, "device=cpu"]))
     kinds = (type(threading.Lock()), type(threading.RLock()), threading.Condition, threading.Thread)
     assert not [name for name, value in vars(slam).items() if isinstance(value, kinds)]
+
+
+def test_densification_reuses_the_gauss_newton_trackers_rendering_while_the_map_is_unchanged(tiny_scene, monkeypatch):
+    from sgs_slam_core.slam import system
+
+    tiny = open_dataset(tiny_scene)
+    slam = Slam(load_config("synthetic", None, [*FAST_SLAM, "tracking.method=gauss_newton"]), tiny.label_table)
+    slam.process(tiny[0])
+    seen = []
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["rendered"])
+        return densify_frame(*args, **kwargs)
+
+    densify_frame = system.densify_frame
+    monkeypatch.setattr(system, "densify_frame", spy)
+    tracked = slam.track(tiny[1])
+    rendering = tracked.result.rendering
+    assert rendering is not None and rendering.gaussians is slam.gaussians
+    expected = densify_frame(slam.gaussians, tracked.frame_data, tiny[1], tracked.c2w, **_densify_args(slam))
+    added = slam.map(tiny[1], tracked).added
+    assert seen[-1] is rendering.out
+    # as many as when rendered again (where the pose round-trips through float64, a pixel may flip)
+    assert expected[1] > 0 and abs(added - expected[1]) <= 0.02 * expected[1], (added, expected[1])
+
+    again = slam.track(tiny[2])
+    slam.gaussians = slam.gaussians.with_tensors()  # a new map object (as after an edit): not the one rendered
+    slam.map(tiny[2], again)
+    assert seen[-1] is None
+
+
+def _densify_args(slam: Slam) -> dict:
+    return {
+        "settings": slam.config.densify,
+        "kernels": slam.kernels,
+        "codec": slam.codec,
+        "edits": slam.edits,
+        "generator": torch.Generator(device="cpu").manual_seed(slam.config.seed),
+    }
+
+
+def test_steps_kept_by_callers_hold_no_frame_tensors_or_renderings(tiny_scene):
+    tiny = open_dataset(tiny_scene)
+    slam = Slam(load_config("synthetic", None, [*FAST_SLAM, "tracking.method=gauss_newton"]), tiny.label_table)
+    steps = [slam.process(tiny[i]) for i in range(3)]
+    assert all(s.track.frame_data is None for s in steps)
+    assert steps[2].track.result is not None and steps[2].track.result.rendering is None

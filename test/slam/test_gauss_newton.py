@@ -175,6 +175,36 @@ def test_the_compiled_level_matches_the_pytorch_reference():
         assert not fast.normals[~fast.valid].any()
 
 
+def test_the_compiled_steps_match_the_pytorch_steps():
+    """A level's damped updates in one compiled call against geometry/icp.py's step loop."""
+    from sgs_slam_core.geometry import icp
+    from sgs_slam_core.kernels.cpu.extensions import GAUSS_NEWTON
+    from sgs_slam_core.kernels.cpu.gauss_newton import icp_steps
+
+    if not GAUSS_NEWTON.is_available():
+        pytest.skip(GAUSS_NEWTON.unavailable_reason())
+    gm, frame = target_frame()
+    k = frame.intrinsics
+    with torch.no_grad():
+        out = render(gm, k, se3_exp(torch.tensor([0.02, 0.0, -0.01, 0.01, 0.0, 0.02])), SETTINGS)
+    confident = out.silhouette > 0.99
+    ref = icp.icp_pyramid(torch.where(confident, out.depth, 0.0), k, 1)[0]
+    ref = ref.with_channels(icp.channel_pyramid(out.color @ torch.tensor([0.3, 0.6, 0.1])[:, None], confident, 1)[0])
+    points = icp.vertex_map(frame.depth, k).reshape(-1, 3)
+    values = icp.source_channels(frame.rgb @ torch.tensor([0.3, 0.6, 0.1])[:, None], 1)[0]
+    start = torch.eye(4, dtype=torch.float64)
+    for level, vals in ((icp.IcpLevel(ref.intrinsics, ref.packed[:, :7]), None), (ref, values)):
+        for damping in (1e-4, 10.0):
+            s = icp.IcpSettings(max_distance_m=0.2, damping=damping)
+            slow = start
+            for _ in range(4):
+                slow = icp._gauss_newton_step(slow, points, level, s, vals)
+            fast = icp_steps(start, points, vals, level, s, 4)
+            assert not torch.allclose(slow, start, atol=1e-4)  # the steps moved the pose
+            assert torch.allclose(fast, slow, atol=1e-6), (fast - slow).abs().max()
+    assert torch.equal(icp_steps(start, points, None, ref, s, 0), start)
+
+
 def test_the_compiled_step_matches_the_pytorch_reference():
     """Normal equations and truncated cost of cpu/gauss_newton.cpp against geometry/icp.py's tensors."""
     from sgs_slam_core.geometry import icp

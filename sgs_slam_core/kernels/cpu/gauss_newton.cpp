@@ -146,6 +146,92 @@ torch::Tensor gauss_newton_terms(torch::Tensor pose, torch::Tensor points, torch
   return out;
 }
 
+namespace {
+
+// x = A^-1 b for a 6x6 system by Gaussian elimination with partial pivoting (as LU solves it).
+void solve6(double a[6][6], double b[6], double x[6]) {
+  for (int col = 0; col < 6; ++col) {
+    int pivot = col;
+    for (int r = col + 1; r < 6; ++r)
+      if (std::fabs(a[r][col]) > std::fabs(a[pivot][col])) pivot = r;
+    if (pivot != col) {
+      for (int k = 0; k < 6; ++k) std::swap(a[col][k], a[pivot][k]);
+      std::swap(b[col], b[pivot]);
+    }
+    for (int r = col + 1; r < 6; ++r) {
+      const double f = a[r][col] / a[col][col];
+      for (int k = col; k < 6; ++k) a[r][k] -= f * a[col][k];
+      b[r] -= f * b[col];
+    }
+  }
+  for (int r = 5; r >= 0; --r) {
+    double acc = b[r];
+    for (int k = r + 1; k < 6; ++k) acc -= a[r][k] * x[k];
+    x[r] = acc / a[r][r];
+  }
+}
+
+// out = exp(xi) @ pose for xi = (rho, phi), as geometry/se3.py's se3_exp (Taylor below t^2 = 1e-8).
+void left_update(const double xi[6], const double* pose, double* out) {
+  const double w0 = xi[3], w1 = xi[4], w2 = xi[5];
+  const double t2 = w0 * w0 + w1 * w1 + w2 * w2;
+  double a, b, c;
+  if (t2 < 1e-8) {
+    a = 1.0 - t2 / 6.0, b = 0.5 - t2 / 24.0, c = 1.0 / 6.0 - t2 / 120.0;
+  } else {
+    const double t = std::sqrt(t2);
+    a = std::sin(t) / t, b = (1.0 - std::cos(t)) / t2, c = (t - std::sin(t)) / (t2 * t);
+  }
+  const double k[3][3] = {{0.0, -w2, w1}, {w2, 0.0, -w0}, {-w1, w0, 0.0}};
+  double kk[3][3], rot[3][3], v[3][3];
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) {
+      kk[i][j] = k[i][0] * k[0][j] + k[i][1] * k[1][j] + k[i][2] * k[2][j];
+      const double eye = i == j ? 1.0 : 0.0;
+      rot[i][j] = eye + a * k[i][j] + b * kk[i][j];
+      v[i][j] = eye + b * k[i][j] + c * kk[i][j];
+    }
+  double m[4][4] = {};
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) m[i][j] = rot[i][j];
+    m[i][3] = v[i][0] * xi[0] + v[i][1] * xi[1] + v[i][2] * xi[2];
+  }
+  m[3][3] = 1.0;
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j)
+      out[i * 4 + j] = m[i][0] * pose[j] + m[i][1] * pose[4 + j] + m[i][2] * pose[8 + j] + m[i][3] * pose[12 + j];
+}
+
+}  // namespace
+
+// `steps` damped Gauss-Newton updates of `pose` at one pyramid level, as geometry/icp.py's `_solve`
+// makes them from these terms: (J^T W J + (damping mean(diag) + 1e-12) I) xi = -J^T W r, then
+// pose <- exp(xi) pose. Returns the pose [4, 4] float64.
+torch::Tensor gauss_newton_steps(torch::Tensor pose, torch::Tensor points, torch::Tensor values,
+                                 torch::Tensor packed, double fx, double fy, double cx, double cy,
+                                 int64_t width, int64_t height, double max_distance, double huber,
+                                 double damping, int64_t steps, int64_t threads) {
+  auto current = pose.to(torch::kFloat64).contiguous().clone();
+  for (int64_t step = 0; step < steps; ++step) {
+    const auto terms = gauss_newton_terms(current, points, values, packed, fx, fy, cx, cy, width, height,
+                                          max_distance, huber, threads);
+    const double* t = terms.data_ptr<double>();
+    double h[6][6], g[6], xi[6];
+    double mean_diag = 0.0;
+    for (int i = 0; i < 6; ++i) mean_diag += t[i * 7 + i] / 6.0;
+    for (int i = 0; i < 6; ++i) {
+      for (int j = 0; j < 6; ++j) h[i][j] = t[i * 7 + j];
+      h[i][i] += damping * mean_diag + 1e-12;
+      g[i] = -t[i * 7 + 6];
+    }
+    solve6(h, g, xi);
+    auto next = torch::empty({4, 4}, torch::kFloat64);
+    left_update(xi, current.data_ptr<double>(), next.data_ptr<double>());
+    current = next;
+  }
+  return current;
+}
+
 // One reference pyramid level, as geometry/icp.py's `_level` packs it (its pure-PyTorch reference):
 // per pixel the camera-frame vertex, the unit normal facing the camera from central differences
 // inside a one-pixel border (every neighbour valid, |cos| to the viewing ray above min_cos), and
@@ -198,6 +284,8 @@ torch::Tensor vertex_normal_level(torch::Tensor depth, double fx, double fy, dou
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("gauss_newton_terms", &gauss_newton_terms, py::call_guard<py::gil_scoped_release>(),
         "Normal equations and truncated cost of one Gauss-Newton step (see the file's header)");
+  m.def("gauss_newton_steps", &gauss_newton_steps, py::call_guard<py::gil_scoped_release>(),
+        "Damped Gauss-Newton steps at one pyramid level: the updated pose");
   m.def("vertex_normal_level", &vertex_normal_level, py::call_guard<py::gil_scoped_release>(),
         "One ICP reference level's packed vertex, normal and validity rows");
 }

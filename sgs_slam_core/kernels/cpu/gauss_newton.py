@@ -11,10 +11,10 @@ from __future__ import annotations
 from torch import Tensor
 
 from sgs_slam_core.geometry.camera import Intrinsics
-from sgs_slam_core.geometry.icp import IcpKernels
+from sgs_slam_core.geometry.icp import IcpKernels, IcpLevel, IcpSettings
 from sgs_slam_core.kernels.cpu.extensions import GAUSS_NEWTON
 
-__all__ = ["ICP_KERNELS", "icp_level", "icp_terms"]
+__all__ = ["ICP_KERNELS", "icp_level", "icp_steps", "icp_terms"]
 
 
 def icp_terms(
@@ -45,4 +45,21 @@ def icp_level(depth: Tensor, intrinsics: Intrinsics, min_normal_cos: float) -> T
     return GAUSS_NEWTON.module().vertex_normal_level(depth.float(), k.fx, k.fy, k.cx, k.cy, min_normal_cos)
 
 
-ICP_KERNELS = IcpKernels(icp_terms, icp_level)
+def icp_steps(
+    src_to_ref: Tensor,  # [4, 4] float64
+    points: Tensor,  # [N, 3] float32 source points, z = 0 where invalid
+    values: Tensor | None,  # [N, C] float32 source channels
+    ref: IcpLevel,
+    s: IcpSettings,
+    steps: int,
+) -> Tensor:  # [4, 4] float64
+    """``steps`` damped Gauss-Newton updates against ``ref`` in one call (CPU tensors, one thread)."""
+    k = ref.intrinsics
+    channels = points.new_zeros((0, 0)) if values is None else values
+    camera = (k.fx, k.fy, k.cx, k.cy, k.width, k.height)
+    return GAUSS_NEWTON.module().gauss_newton_steps(
+        src_to_ref, points, channels, ref.packed, *camera, s.max_distance_m, s.huber_m, s.damping, steps, 1
+    )
+
+
+ICP_KERNELS = IcpKernels(terms=icp_terms, steps=icp_steps, level=icp_level)

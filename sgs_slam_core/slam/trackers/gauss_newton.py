@@ -25,7 +25,7 @@ from sgs_slam_core.geometry.se3 import se3_inverse
 from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.render.output import RenderOutput
-from sgs_slam_core.slam.tracker import TrackResult, track
+from sgs_slam_core.slam.tracker import TrackRendering, TrackResult, track
 
 __all__ = ["GaussNewtonTracker"]
 
@@ -82,7 +82,7 @@ class GaussNewtonTracker:
                 time_s=time.perf_counter() - t0,
                 renders=self.gn.renders + polished.iterations,
             )
-        return self._judge(fixed, frame, w2c, use_semantics, init_w2c, steps, t0)
+        return self._judge(gaussians, frame, w2c, use_semantics, init_w2c, steps, t0)
 
     def _solve(self, gaussians: GaussianMap, frame: FrameTensors, w2c: Tensor, semantic: bool) -> Tensor:
         """The aligned world-to-camera pose [4, 4] float64, on the device."""
@@ -97,7 +97,7 @@ class GaussNewtonTracker:
                 out = self.kernels.render(gaussians, k, w2c.float(), with_semantics=semantic)
             with stage("track.solve"):
                 reference = self._reference(out, k, levels, semantic)
-                aligned = align_device(depth, k, reference, eye, self.icp, sources, self.kernels.icp.terms)
+                aligned = align_device(depth, k, reference, eye, self.icp, sources, self.kernels.icp)
                 w2c = se3_inverse(aligned.src_to_ref) @ w2c  # the frame's camera -> the rendered camera
         return w2c
 
@@ -146,8 +146,11 @@ class GaussNewtonTracker:
         steps: int,
         t0: float,
     ) -> TrackResult:
-        """The tracking loss at the solved pose, read back with the pose in one host read."""
-        with stage("track.render"):
+        """The tracking loss at the solved pose, read back with the pose in one host read.
+
+        The rendering goes with the result: densification reuses it while ``gaussians`` is the map.
+        """
+        with stage("track.render"), torch.no_grad():
             out = self.kernels.render(gaussians, frame.intrinsics, w2c.float(), with_semantics=use_semantics)
         with stage("track.loss"):
             loss = self.kernels.tracking_loss(out, frame, self.settings, use_semantics)
@@ -171,4 +174,5 @@ class GaussNewtonTracker:
             pixels / frame.depth.numel(),
             time.perf_counter() - t0,
             renders,
+            TrackRendering(gaussians, out),
         )
