@@ -276,7 +276,10 @@ def declare(node: Node, specs: tuple[ParamSpec, ...]) -> NodeParams:
 
 
 def slam_config(values: NodeParams) -> SlamConfig:
-    """The core config from the node's parameters (preset, file, overrides, device, and a tracker's map frame)."""
+    """The core config from the node's parameters (preset, file, overrides, device, and a tracker's map frame).
+
+    Live nodes (not ``lockstep``) take the config's live variant (``live.tracking_method``).
+    """
     overrides = [*values["overrides"], f"device={values['device']}"]
     if "map_alignment" in values:  # the tracking node's parameters choose the map frame
         overrides += [
@@ -284,4 +287,5 @@ def slam_config(values: NodeParams) -> SlamConfig:
             f"map_frame.camera_mount={list(values['camera_mount'])}",
             f"map_frame.floor_max_tilt_deg={values['floor_max_tilt_deg']}",
         ]
-    return load_config(values["preset"], values["config_file"] or None, overrides)
+    config = load_config(values["preset"], values["config_file"] or None, overrides)
+    return config if values["lockstep"] else config.for_live()

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar, Literal
 
 from sgs_slam_core.config.sections import (
@@ -57,6 +57,13 @@ class SlamConfig:
         **{f"tracking.{key}": f"motion.{key}" for key in _MOTION_KEYS},
         **{f"tracking.{key}": f"tracking.adam.{key}" for key in _ADAM_KEYS},
     }
+
+    def for_live(self) -> SlamConfig:
+        """This config as live runs use it: ``live.tracking_method``, when set, replaces ``tracking.method``."""
+        method = self.live.tracking_method
+        if method is None or method == self.tracking.method:
+            return self
+        return replace(self, tracking=replace(self.tracking, method=method))
 
     def __post_init__(self) -> None:
         if self.seed < 0:

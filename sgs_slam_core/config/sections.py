@@ -77,10 +77,10 @@ class GaussNewtonSettings:
     huber_m: float = 0.01
     damping: float = 1e-4
     min_width: int = 40
-    color_scale_m: float = 0.1
+    color_scale_m: float = 1.0
     color_channels: Literal["intensity", "rgb"] = "intensity"
     semantic_scale_m: float = 0.0
-    photometric_levels: int = 0
+    photometric_levels: int = 1
     adam_steps: int = 0
     adam_lr_scale: float = 0.25
 
@@ -454,10 +454,14 @@ class LiveSettings:
             mapping only fills the time between frames).
         preempt_fraction: with mapping on its own CUDA stream beside tracking, a job ends once it
             made this fraction of its steps and a newer frame waits to be mapped (1 = never early).
+        tracking_method: the tracker live runs use in place of ``tracking.method`` (null: that
+            one). Gauss-Newton by default: it renders the map twice a frame where Adam renders it
+            at every step, so it keeps up with a camera; lockstep runs keep ``tracking.method``.
     """
 
-    map_turn_fraction: float = 0.1
+    map_turn_fraction: float = 0.01
     preempt_fraction: float = 1 / 3
+    tracking_method: TrackerName | None = "gauss_newton"
 
     def __post_init__(self) -> None:
         for name, value in (("map_turn_fraction", self.map_turn_fraction), ("preempt_fraction", self.preempt_fraction)):

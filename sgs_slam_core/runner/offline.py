@@ -231,6 +231,8 @@ def _track_and_map(
 ) -> tuple[Slam, _Loop]:
     """Create the run folder, process the frames, write the results (see :func:`run_offline` on failures)."""
     created = prepare_run_dir(out, overwrite)
+    if realtime is not None:
+        config = config.for_live()
     try:
         dump_yaml(config, out / "config.yaml")
         torch.manual_seed(config.seed)

@@ -73,3 +73,14 @@ def test_range_errors_and_bad_overrides(tmp_path):
         load_yaml(bad)
     with pytest.raises(ConfigError, match="cannot read"):
         load_yaml(tmp_path / "missing.yaml")
+
+
+def test_live_runs_swap_in_the_live_tracker_and_lockstep_runs_keep_the_presets():
+    preset = load_config("tum")
+    assert preset.tracking.method == "adam" and preset.for_live().tracking.method == "gauss_newton"
+    assert preset.for_live().tracking.adam == preset.tracking.adam  # the rest of the section stays
+    keep = load_config("tum", overrides=["live.tracking_method=null"])
+    assert keep.for_live() is keep
+    assert load_config("tum", overrides=["live.tracking_method=adam"]).for_live().tracking.method == "adam"
+    with pytest.raises(ConfigError, match="live.tracking_method"):
+        load_config("tum", overrides=["live.tracking_method=lbfgs"])

@@ -300,6 +300,7 @@ def test_cli_realtime_writes_the_counts(tiny_scene, tmp_path):
     assert metrics["frames_tracked"] + metrics["frames_dropped"] == 12
     stamps, _ = read_tum_trajectory(out / "trajectory.txt")
     assert len(stamps) == metrics["frames_tracked"] == metrics["frames"]
+    assert load_config(path=out / "config.yaml").tracking.method == "gauss_newton"  # the live tracker, recorded
 
 
 def test_nodes_reach_the_slam_through_the_pipeline(tiny_scene):

@@ -36,6 +36,7 @@ def test_frames_lost_before_the_node_are_counted(tiny_scene):
             time.sleep(PERIOD / 1e9)
         assert wait_for(lambda: nodes[0].assembler.colour_in == len(sent), 10.0)
         assert nodes[0].pipeline.wait_idle(60.0)
+        assert nodes[0].pipeline.slam.config.tracking.method == "gauss_newton"  # a live node's tracker
 
         def settled():  # a status published after the last frame's outcome (once a second)
             d = diagnostics_of(diag, "tracking_node")
@@ -78,6 +79,7 @@ def test_busy_lockstep_node_gives_no_remap_advice(tiny_scene):
             feeder.publish(frame)
             assert wait_for(lambda f=frame: f.stamp_ns in feeder.poses, 60.0)
         assert nodes[0].pipeline.wait_idle(60.0)
+        assert nodes[0].pipeline.slam.config.tracking.method == "adam"  # lockstep keeps the preset's
         statuses = diagnostics_of(diag, "tracking_node")
         busy = [m for lvl, m, _ in statuses if m.startswith("busy")]
         assert busy and "frames/s" in busy[0], [m for _, m, _ in statuses]  # slower than stale_input_s: it says so
