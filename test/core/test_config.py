@@ -82,5 +82,5 @@ def test_live_runs_swap_in_the_live_tracker_and_lockstep_runs_keep_the_presets()
     keep = load_config("tum", overrides=["live.tracking_method=null"])
     assert keep.for_live() is keep
     assert load_config("tum", overrides=["live.tracking_method=adam"]).for_live().tracking.method == "adam"
-    with pytest.raises(ConfigError, match="live.tracking_method"):
+    with pytest.raises(ConfigError, match=r"live\.tracking_method"):
         load_config("tum", overrides=["live.tracking_method=lbfgs"])
