@@ -104,8 +104,8 @@ class TrackingNode(Node):
         size = "input size" if self.params["downscale"] == 1.0 else f"input size / {self.params['downscale']:g}"
         self.get_logger().info(
             f"tracking {', '.join(self.camera.watch.topics.values())} with preset {self.params['preset']} "
-            f"on {pipeline.slam.device} ({mode}, processing at {size}); map frame '{self.map_frame}' "
-            f"({self.alignment.value})"
+            f"on {pipeline.slam.device} ({mode}, {pipeline.slam.config.tracking.method} tracker, "
+            f"processing at {size}); map frame '{self.map_frame}' ({self.alignment.value})"
         )
 
     def _pipeline(self, standalone: bool) -> SlamPipeline:
