@@ -61,7 +61,8 @@ class GaussNewtonTracker:
         t0 = time.perf_counter()
         fixed = gaussians.detach()
         semantic = use_semantics and frame.semantic is not None and self.gn.semantic_scale_m > 0
-        w2c = self._solve(fixed, frame, torch.as_tensor(init_w2c, dtype=torch.float64, device=fixed.device), semantic)
+        init = torch.as_tensor(init_w2c, dtype=torch.float64, device=fixed.device)
+        w2c, start = self._solve(fixed, frame, init, semantic, use_semantics)
         steps = sum(self.icp.steps_for(frame.intrinsics.width)) * self.gn.renders
         if self.gn.adam_steps > 0:
             scale = self.gn.adam_lr_scale
@@ -82,24 +83,32 @@ class GaussNewtonTracker:
                 time_s=time.perf_counter() - t0,
                 renders=self.gn.renders + polished.iterations,
             )
-        return self._judge(gaussians, frame, w2c, use_semantics, init_w2c, steps, t0)
+        return self._judge(gaussians, frame, (w2c, start), use_semantics, init_w2c, steps, t0)
 
-    def _solve(self, gaussians: GaussianMap, frame: FrameTensors, w2c: Tensor, semantic: bool) -> Tensor:
-        """The aligned world-to-camera pose [4, 4] float64, on the device."""
+    def _solve(
+        self, gaussians: GaussianMap, frame: FrameTensors, w2c: Tensor, semantic: bool, judged_semantics: bool
+    ) -> tuple[Tensor, RenderOutput]:
+        """The aligned world-to-camera pose [4, 4] float64 (on the device), and the rendering at the start.
+
+        ``semantic``: the alignment has a semantic term; ``judged_semantics``: the start's rendering
+        also carries the semantic channels, for the tracking loss that judges it.
+        """
         k = frame.intrinsics
         levels = len(self.icp.steps_for(k.width))
         depth = torch.where(frame.valid, frame.depth, 0.0)
         channels = self._channels(frame.rgb, frame.semantic if semantic else None)
         sources = None if channels is None else self._photometric(source_channels(channels, levels))
         eye = torch.eye(4, dtype=torch.float64, device=w2c.device)
-        for _ in range(self.gn.renders):
+        rendered: list[RenderOutput] = []
+        for i in range(self.gn.renders):
+            with_semantics = semantic or (i == 0 and judged_semantics)
             with stage("track.render"):
-                out = self.kernels.render(gaussians, k, w2c.float(), with_semantics=semantic)
+                rendered.append(self.kernels.render(gaussians, k, w2c.float(), with_semantics=with_semantics))
             with stage("track.solve"):
-                reference = self._reference(out, k, levels, semantic)
+                reference = self._reference(rendered[-1], k, levels, semantic)
                 aligned = align_device(depth, k, reference, eye, self.icp, sources, self.kernels.icp)
                 w2c = se3_inverse(aligned.src_to_ref) @ w2c  # the frame's camera -> the rendered camera
-        return w2c
+        return w2c, rendered[0]  # renders >= 1: the settings check it
 
     def _reference(self, out: RenderOutput, k: Intrinsics, levels: int, semantic: bool) -> list[IcpLevel]:
         """The rendering as the alignment's reference, where the silhouette is confident.
@@ -140,32 +149,35 @@ class GaussNewtonTracker:
         self,
         gaussians: GaussianMap,
         frame: FrameTensors,
-        w2c: Tensor,  # [4, 4] float64
+        solved: tuple[Tensor, RenderOutput],  # the solved w2c [4, 4] float64, the rendering at the start
         use_semantics: bool,
         init_w2c: np.ndarray,
         steps: int,
         t0: float,
     ) -> TrackResult:
-        """The tracking loss at the solved pose, read back with the pose in one host read.
+        """The tracking loss at the solved pose and at the start, read back with the pose in one host read.
 
-        The rendering goes with the result: densification reuses it while ``gaussians`` is the map.
+        The solve is kept unless the start's loss is lower (the Adam tracker, too, keeps its best
+        evaluated pose, the start included); the rendering at the kept pose goes with the result, and
+        densification reuses it while ``gaussians`` is the map.
         """
+        w2c, start = solved
         with stage("track.render"), torch.no_grad():
             out = self.kernels.render(gaussians, frame.intrinsics, w2c.float(), with_semantics=use_semantics)
         with stage("track.loss"):
-            loss = self.kernels.tracking_loss(out, frame, self.settings, use_semantics)
-            stats = torch.stack(
-                [loss.total.detach().double(), loss.pixels.double(), loss.depth_residual_m.detach().double()]
-            )
+            stats = torch.cat([self._loss_stats(rendered, frame, use_semantics) for rendered in (out, start)])
         values = torch.cat([stats, w2c.reshape(-1)]).cpu().numpy()
-        value, pixels, residual = (float(v) for v in values[:3])
         renders = self.gn.renders + 1
-        if pixels == 0:  # nothing explained at the result: keep the prediction, as the Adam tracker does
+        pose = values[6:].reshape(4, 4)
+        if values[4] > 0 and (values[1] == 0 or values[3] < values[0]):  # the start explains the frame better
+            values, pose, out = values[3:], init_w2c.copy(), start
+        value, pixels, residual = (float(v) for v in values[:3])
+        if pixels == 0:  # nothing explained at either pose: keep the prediction, as the Adam tracker does
             return TrackResult(
                 init_w2c.copy(), steps, False, float("inf"), 0.0, float("inf"), 0.0, time.perf_counter() - t0, renders
             )
         return TrackResult(
-            values[3:].reshape(4, 4),
+            pose,
             steps,
             True,
             value,
@@ -175,4 +187,11 @@ class GaussNewtonTracker:
             time.perf_counter() - t0,
             renders,
             TrackRendering(gaussians, out),
+        )
+
+    def _loss_stats(self, out: RenderOutput, frame: FrameTensors, use_semantics: bool) -> Tensor:
+        """[3] float64: the tracking loss at ``out``, its pixel count and mean depth residual (m)."""
+        loss = self.kernels.tracking_loss(out, frame, self.settings, use_semantics)
+        return torch.stack(
+            [loss.total.detach().double(), loss.pixels.double(), loss.depth_residual_m.detach().double()]
         )
