@@ -65,6 +65,9 @@ class GaussNewtonSettings:
         semantic_scale_m: the same for a semantic feature difference of 1; 0 = no semantic term.
         photometric_levels: the finest this many pyramid levels carry the intensity and semantic
             terms (0 = every level); coarser levels align depth alone, which converges from farther.
+        keep_start: keep the starting pose where its tracking loss is lower than the solve's (the
+            Adam tracker keeps its best evaluated pose, the start included); off, the solve
+            always wins.
         adam_steps: steps of the Adam tracker after the Gauss-Newton solve (its loss, keeping the
             best evaluated pose, so never worse than the solve by that loss); 0 = none.
         adam_lr_scale: those steps' learning rates as a fraction of ``tracking.adam.lr_*`` (the solve
@@ -81,6 +84,7 @@ class GaussNewtonSettings:
     color_channels: Literal["intensity", "rgb"] = "intensity"
     semantic_scale_m: float = 0.0
     photometric_levels: int = 1
+    keep_start: bool = False
     adam_steps: int = 0
     adam_lr_scale: float = 0.25
 

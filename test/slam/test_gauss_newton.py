@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -114,13 +116,14 @@ def test_coarse_levels_align_depth_alone_below_the_photometric_levels():
         assert [level.num_channels for level in levels] == expected, keep
 
 
-def test_a_solve_that_explains_the_frame_worse_than_its_start_is_not_kept(monkeypatch):
+def test_with_keep_start_a_solve_that_explains_the_frame_worse_than_its_start_is_not_kept(monkeypatch):
     from sgs_slam_core.geometry.icp import DeviceAlignment
     from sgs_slam_core.slam.trackers import gauss_newton
 
     gm, frame = target_frame(width=64, height=48)
     start = se3_exp(torch.tensor([0.005, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=torch.float64)).numpy()
-    s = TrackingSettings(method="gauss_newton", sil_threshold=0.99, gauss_newton=GaussNewtonSettings(min_width=8))
+    gn = GaussNewtonSettings(min_width=8, keep_start=True)
+    s = TrackingSettings(method="gauss_newton", sil_threshold=0.99, gauss_newton=gn)
     solved = GaussNewtonTracker(s, TORCH).track(gm, frame, start, False)
     assert np.linalg.norm(solved.w2c[:3, 3]) < 0.5 * np.linalg.norm(start[:3, 3])  # a good solve is kept
     assert solved.rendering is not None
@@ -133,6 +136,9 @@ def test_a_solve_that_explains_the_frame_worse_than_its_start_is_not_kept(monkey
     kept = GaussNewtonTracker(s, TORCH).track(gm, frame, start, False)
     assert np.array_equal(kept.w2c, start) and np.isfinite(kept.loss) and kept.valid_fraction > 0.3
     assert kept.loss < solved.loss * 10 and kept.rendering is not None  # the start's own rendering
+    s = TrackingSettings(method="gauss_newton", sil_threshold=0.99, gauss_newton=replace(gn, keep_start=False))
+    astray_kept = GaussNewtonTracker(s, TORCH).track(gm, frame, start, False)
+    assert astray_kept.w2c[0, 3] == pytest.approx(start[0, 3] - 0.2, abs=1e-6)  # off: the solve always wins
 
 
 def test_an_empty_map_keeps_the_prediction():

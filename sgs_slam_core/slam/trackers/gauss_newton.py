@@ -169,7 +169,8 @@ class GaussNewtonTracker:
         values = torch.cat([stats, w2c.reshape(-1)]).cpu().numpy()
         renders = self.gn.renders + 1
         pose = values[6:].reshape(4, 4)
-        if values[4] > 0 and (values[1] == 0 or values[3] < values[0]):  # the start explains the frame better
+        start_better = values[4] > 0 and (values[1] == 0 or values[3] < values[0])
+        if self.gn.keep_start and start_better:
             values, pose, out = values[3:], init_w2c.copy(), start
         value, pixels, residual = (float(v) for v in values[:3])
         if pixels == 0:  # nothing explained at either pose: keep the prediction, as the Adam tracker does
