@@ -15,8 +15,15 @@ from sgs_slam_core.errors import ConfigError
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry import se3_exp
-from sgs_slam_core.geometry.camera import Intrinsics
-from sgs_slam_core.geometry.icp import _associate, _channel_rows, channel_pyramid, icp_pyramid
+from sgs_slam_core.geometry.camera import Intrinsics, vertex_map
+from sgs_slam_core.geometry.icp import (
+    IcpLevel,
+    _associate,
+    _channel_rows,
+    channel_pyramid,
+    icp_pyramid,
+    source_channels,
+)
 from sgs_slam_core.kernels import build_kernels, render
 from sgs_slam_core.render import RenderSettings
 from sgs_slam_core.slam.densify import gaussians_from_pixels
@@ -202,6 +209,23 @@ def test_the_compiled_level_matches_the_pytorch_reference():
         assert not fast.normals[~fast.valid].any()
 
 
+def _one_level_alignment(view: list[float]) -> tuple[IcpLevel, torch.Tensor, torch.Tensor]:
+    """The target map rendered from ``view`` (an se(3) vector) as a one-level reference with intensity
+    and a semantic channel, and the target frame's points [N, 3] and channels [N, 2]."""
+    gm, frame = target_frame()
+    k = frame.intrinsics
+    with torch.no_grad():
+        out = render(gm, k, se3_exp(torch.tensor(view)), SETTINGS)
+    confident = out.silhouette > 0.99
+    luma = torch.tensor([0.3, 0.6, 0.1])
+    channels = torch.stack([out.color @ luma, out.semantic[..., 0]], dim=-1) * 0.1  # [H, W, 2]
+    ref = icp_pyramid(torch.where(confident, out.depth, 0.0), k, 1)[0]
+    ref = ref.with_channels(channel_pyramid(channels, confident, 1)[0])
+    points = vertex_map(frame.depth, k).reshape(-1, 3)
+    values = source_channels(torch.stack([frame.rgb @ luma, frame.semantic[..., 0]], dim=-1) * 0.1, 1)[0]
+    return ref, points, values
+
+
 def test_the_compiled_steps_match_the_pytorch_steps():
     """A level's damped updates in one compiled call against geometry/icp.py's step loop."""
     from sgs_slam_core.geometry import icp
@@ -210,15 +234,7 @@ def test_the_compiled_steps_match_the_pytorch_steps():
 
     if not GAUSS_NEWTON.is_available():
         pytest.skip(GAUSS_NEWTON.unavailable_reason())
-    gm, frame = target_frame()
-    k = frame.intrinsics
-    with torch.no_grad():
-        out = render(gm, k, se3_exp(torch.tensor([0.02, 0.0, -0.01, 0.01, 0.0, 0.02])), SETTINGS)
-    confident = out.silhouette > 0.99
-    ref = icp.icp_pyramid(torch.where(confident, out.depth, 0.0), k, 1)[0]
-    ref = ref.with_channels(icp.channel_pyramid(out.color @ torch.tensor([0.3, 0.6, 0.1])[:, None], confident, 1)[0])
-    points = icp.vertex_map(frame.depth, k).reshape(-1, 3)
-    values = icp.source_channels(frame.rgb @ torch.tensor([0.3, 0.6, 0.1])[:, None], 1)[0]
+    ref, points, values = _one_level_alignment([0.02, 0.0, -0.01, 0.01, 0.0, 0.02])
     start = torch.eye(4, dtype=torch.float64)
     for level, vals in ((icp.IcpLevel(ref.intrinsics, ref.packed[:, :7]), None), (ref, values)):
         for damping in (1e-4, 10.0):
@@ -240,17 +256,7 @@ def test_the_compiled_step_matches_the_pytorch_reference():
 
     if not GAUSS_NEWTON.is_available():
         pytest.skip(GAUSS_NEWTON.unavailable_reason())
-    gm, frame = target_frame()
-    k = frame.intrinsics
-    with torch.no_grad():
-        out = render(gm, k, se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.01, 0.0, 0.02])), SETTINGS)
-    confident = out.silhouette > 0.99
-    luma = torch.tensor([0.3, 0.6, 0.1])
-    channels = torch.stack([out.color @ luma, out.semantic[..., 0]], dim=-1) * 0.1  # [H, W, 2]
-    ref = icp.icp_pyramid(torch.where(confident, out.depth, 0.0), k, 1)[0]
-    ref = ref.with_channels(icp.channel_pyramid(channels, confident, 1)[0])
-    points = icp.vertex_map(frame.depth, k).reshape(-1, 3)
-    values = icp.source_channels(torch.stack([frame.rgb @ luma, frame.semantic[..., 0]], dim=-1) * 0.1, 1)[0]
+    ref, points, values = _one_level_alignment([0.01, 0.0, -0.01, 0.01, 0.0, 0.02])
     s = icp.IcpSettings(max_distance_m=0.2)
     pose = se3_exp(torch.tensor([0.005, 0.0, 0.0, 0.0, 0.01, 0.0], dtype=torch.float64))
     depth_only = icp.IcpLevel(ref.intrinsics, ref.packed[:, :7])
