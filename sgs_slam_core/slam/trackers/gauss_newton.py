@@ -62,7 +62,7 @@ class GaussNewtonTracker:
         fixed = gaussians.detach()
         semantic = use_semantics and frame.semantic is not None and self.gn.semantic_scale_m > 0
         init = torch.as_tensor(init_w2c, dtype=torch.float64, device=fixed.device)
-        w2c, start = self._solve(fixed, frame, init, semantic, use_semantics)
+        w2c, start = self._solve(fixed, frame, init, semantic, use_semantics and self.gn.keep_start)
         steps = sum(self.icp.steps_for(frame.intrinsics.width)) * self.gn.renders
         if self.gn.adam_steps > 0:
             scale = self.gn.adam_lr_scale
@@ -157,20 +157,21 @@ class GaussNewtonTracker:
     ) -> TrackResult:
         """The tracking loss at the solved pose and at the start, read back with the pose in one host read.
 
-        The solve is kept unless the start's loss is lower (the Adam tracker, too, keeps its best
-        evaluated pose, the start included); the rendering at the kept pose goes with the result, and
-        densification reuses it while ``gaussians`` is the map.
+        With ``keep_start`` the solve is kept unless the start's loss is lower (the Adam tracker, too,
+        keeps its best evaluated pose, the start included); without, the start's loss is not
+        computed. The rendering at the kept pose goes with the result, and densification reuses it
+        while ``gaussians`` is the map.
         """
         w2c, start = solved
         with stage("track.render"), torch.no_grad():
             out = self.kernels.render(gaussians, frame.intrinsics, w2c.float(), with_semantics=use_semantics)
         with stage("track.loss"):
-            stats = torch.cat([self._loss_stats(rendered, frame, use_semantics) for rendered in (out, start)])
+            judged = (out, start) if self.gn.keep_start else (out,)
+            stats = torch.cat([self._loss_stats(rendered, frame, use_semantics) for rendered in judged])
         values = torch.cat([stats, w2c.reshape(-1)]).cpu().numpy()
         renders = self.gn.renders + 1
-        pose = values[6:].reshape(4, 4)
-        start_better = values[4] > 0 and (values[1] == 0 or values[3] < values[0])
-        if self.gn.keep_start and start_better:
+        pose = values[len(stats) :].reshape(4, 4)
+        if self.gn.keep_start and values[4] > 0 and (values[1] == 0 or values[3] < values[0]):  # the start is better
             values, pose, out = values[3:], init_w2c.copy(), start
         value, pixels, residual = (float(v) for v in values[:3])
         if pixels == 0:  # nothing explained at either pose: keep the prediction, as the Adam tracker does
