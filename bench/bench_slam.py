@@ -39,8 +39,9 @@ from sgs_slam_core.runner import RunResult, run_offline
 from sgs_slam_core.runner.realtime import RealtimeOptions
 from sgs_slam_core.slam.system import Slam
 
-LABELS = ("data_loading", "upload", "track.render", "track.loss", "track.backward", "track.step", "densify",
-          "keyframe_selection", "map.render", "map.loss", "map.backward", "map.step", "map.prune")  # fmt: skip
+LABELS = ("data_loading", "upload", "track.render", "track.solve", "track.loss", "track.backward", "track.step",
+          "densify", "keyframe_selection", "map.render", "map.loss", "map.backward", "map.step",
+          "map.prune")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -114,8 +115,22 @@ def timing_plot(path: Path, result: RunResult, title: str) -> None:
     save_panels(path, [line_panel(times, f"time per frame, {title}", "ms"), line_panel(count, "map size", "k")])
 
 
-def profile_frames(dataset: Dataset, config: SlamConfig, warmup: int, count: int) -> tuple[list[ProfileRow], float]:
-    """Profile frames warmup..warmup+count-1 of a fresh run; rows per label and the wall ms per frame."""
+@dataclass(frozen=True)
+class Profile:
+    """What ``profile_frames`` measured: rows per label, wall ms per frame, the busiest host operators."""
+
+    rows: list[ProfileRow]
+    wall_ms: float
+    top_ops: list[ProfileRow]  # by self host time, per frame (device_ms: their self device time)
+    syncs: dict[str, float]  # host-blocking calls per frame, by name
+
+
+# operators and runtime calls that make the host wait for the device (a host read of a device value)
+SYNC_EVENTS = ("aten::_local_scalar_dense", "cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaMemcpyAsync")
+
+
+def profile_frames(dataset: Dataset, config: SlamConfig, warmup: int, count: int) -> Profile:
+    """Profile frames warmup..warmup+count-1 of a fresh run."""
     torch.manual_seed(config.seed)
     slam = Slam(config, dataset.label_table)
     for i in range(min(warmup, len(dataset) - 1)):
@@ -132,7 +147,16 @@ def profile_frames(dataset: Dataset, config: SlamConfig, warmup: int, count: int
     n = max(len(frames), 1)
     averages = prof.key_averages()  # aggregates every event: once, not per label
     rows = [row for label in LABELS if (row := _label_row(averages, label, n)) is not None]
-    return rows, wall_s * 1e3 / n
+    host_ops = [e for e in averages if getattr(e, "device_type", DeviceType.CPU) == DeviceType.CPU]
+    ops = sorted((e for e in host_ops if e.key not in LABELS), key=lambda e: e.self_cpu_time_total, reverse=True)
+    top = [
+        ProfileRow(
+            e.key, e.self_cpu_time_total / 1e3 / n, getattr(e, "self_device_time_total", 0.0) / 1e3 / n, e.count // n
+        )
+        for e in ops[:15]
+    ]
+    syncs = {name: sum(e.count for e in host_ops if e.key == name) / n for name in SYNC_EVENTS}
+    return Profile(rows, wall_s * 1e3 / n, top, syncs)
 
 
 def _label_row(averages: list, label: str, frames: int) -> ProfileRow | None:
@@ -193,6 +217,14 @@ def profile_table(rows: list[ProfileRow], wall_ms: float, device: str) -> str:
     return table
 
 
+def ops_table(prof: Profile) -> str:
+    """Markdown: the operators with the most self host time per frame, and the host waits per frame."""
+    body = [[f"`{r.label}`", f"{r.host_ms:.2f}", f"{r.device_ms:.2f}", r.calls] for r in prof.top_ops]
+    table = markdown_table(["operator", "self host ms/frame", "self device ms/frame", "calls/frame"], body)
+    waits = ", ".join(f"`{name}` {count:.0f}" for name, count in prof.syncs.items() if count > 0) or "none"
+    return table + f"\n\nHost waits on the device per frame: {waits}."
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("input", nargs="?", type=Path, help="dataset folder or MCAP bag (default: the synthetic room)")
@@ -234,11 +266,13 @@ def main() -> None:
     body = markdown_table(SUMMARY_HEADERS, summary_rows(result, dataset, preset))
     body += f"\n\nOverrides: {args.overrides or 'none'}. Run folder (frames.csv, metrics.json, timing.png): `{out}`.\n"
     if args.profile > 0:
-        rows, wall_ms = profile_frames(dataset, config, args.profile_warmup, args.profile)
+        prof = profile_frames(dataset, config, args.profile_warmup, args.profile)
         body += (
             f"\nProfile of frames {args.profile_warmup}..{args.profile_warmup + args.profile - 1} "
-            f"(torch.profiler, {wall_ms:.1f} ms/frame under the profiler):\n\n"
-            + profile_table(rows, wall_ms, result.slam.device.type)
+            f"(torch.profiler, {prof.wall_ms:.1f} ms/frame under the profiler):\n\n"
+            + profile_table(prof.rows, prof.wall_ms, result.slam.device.type)
+            + "\n\n"
+            + ops_table(prof)
             + "\n"
         )
     print(body)

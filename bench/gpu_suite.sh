@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The GPU suite in one device call: GPU tests, gsplat renderer benchmark, SLAM at 640x480 in lockstep
-# and at 30 Hz realtime, on the synthetic room and a TUM fr3/teddy subset. Results go under $OUT.
+# The GPU suite in one device call, at 640x480: GPU tests, both trackers side by side (TUM fr3/teddy
+# subset, synthetic room), the SLAM live at the camera's rate and in lockstep, the gsplat renderer
+# benchmark. Results go under $OUT.
 #
 #   bash bench/gpu_suite.sh prepare [FRAMES]   # here: wheels into .whl/, a TUM subset into .gpu_data/
 #   bash bench/gpu_suite.sh run                # there (the device tool), carrying .whl and .gpu_data
@@ -78,6 +79,9 @@ install_wheels() {  # install_wheels FOLDER: its wheels into a venv over the ima
   # venv's scheme: the ROS wheels' start-up hook (a .pth file) in site-packages, their shared
   # libraries in <venv>/lib (pip --target drops those, and rclpy then does not import)
   $PY -m venv --system-site-packages --without-pip /tmp/sgs_venv
+  # the image's python may itself be a venv, whose packages a nested venv does not see: a .pth names them
+  $PY -c "import site; print('\n'.join(site.getsitepackages()))" \
+    > "$(/tmp/sgs_venv/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/image_packages.pth"
   /tmp/sgs_venv/bin/python -m pip install -q --no-index --no-deps "$1"/*.whl >> "$OUT/pip.log" 2>&1
   PY=/tmp/sgs_venv/bin/python
 }
@@ -111,21 +115,24 @@ run_suite() {
   [ -n "$build_pid" ] && wait "$build_pid"
   local tests=(test/devices/test_cuda.py)
   [ "$device" = cuda ] && tests+=(test/render/test_gsplat_parity.py)
-  step gpu_tests 240 $PY -m pytest -q -rs "${tests[@]}"
+  step gpu_tests 150 $PY -m pytest -q -rs "${tests[@]}"
   local sets=(--device "$device" --no-append)
   [ "$device" = cuda ] && sets=(--device cuda)
-  if [ "$device" = cuda ]; then
-    step render 120 $PY bench/bench_render.py --backend gsplat
-  fi
   local tum=.gpu_data/tum_fr3_teddy
-  step slam_room 300 $PY bench/bench_slam.py "$room" --preset synthetic "${sets[@]}" --profile 5 --profile-warmup 10 --out "$OUT/run_room"
-  step slam_room_rt30 200 $PY bench/bench_slam.py "$room" --preset synthetic "${sets[@]}" --realtime 30 --out "$OUT/run_room_rt30"
+  if [ -d "$tum" ]; then  # both trackers on the same frames and maps, then each in its own run
+    step tracking_tum 150 $PY bench/bench_tracking.py "$tum" --preset tum "${sets[@]}" --max-frames "$tum_frames" \
+      --downscale "$scale" --trackers adam gauss_newton
+  fi
+  step slam_room_rt30 90 $PY bench/bench_slam.py "$room" --preset synthetic "${sets[@]}" --realtime 30 --out "$OUT/run_room_rt30"
   if [ -d "$tum" ]; then
-    local tsets=("${sets[@]}" --max-frames "$tum_frames" --downscale "$scale")
-    step slam_tum 240 $PY bench/bench_slam.py "$tum" --preset tum "${tsets[@]}" --out "$OUT/run_tum"
-    step slam_tum_rt 150 $PY bench/bench_slam.py "$tum" --preset tum "${tsets[@]}" --realtime --out "$OUT/run_tum_rt"
-    step slam_tum_splatam_budget 300 $PY bench/bench_slam.py "$tum" --preset tum "${tsets[@]}" \
-      --set tracking.adam.early_stop=false --set mapping.iterations=30 --set mapping.lr_means=1e-4 --out "$OUT/run_tum_splatam"
+    step slam_tum_rt 60 $PY bench/bench_slam.py "$tum" --preset tum "${sets[@]}" --max-frames "$tum_frames" \
+      --downscale "$scale" --realtime --out "$OUT/run_tum_rt"
+  fi
+  step slam_room 220 $PY bench/bench_slam.py "$room" --preset synthetic "${sets[@]}" --out "$OUT/run_room"
+  step tracking_room 90 $PY bench/bench_tracking.py "$room" --preset synthetic "${sets[@]}" --max-frames 30 \
+    --downscale 1 --trackers adam gauss_newton --skip-runs
+  if [ "$device" = cuda ]; then
+    step render 60 $PY bench/bench_render.py --backend gsplat
   fi
   for run in "$OUT"/run_*; do  # keep the small files; maps and renders stay behind
     [ -d "$run" ] && find "$run" -maxdepth 1 -type f \( -name '*.sgsmap' -o -name '*.ply' \) -delete
