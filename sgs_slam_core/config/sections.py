@@ -336,6 +336,9 @@ class DensifySettings:
             as the reference).
         resolution_scale: add (and initialise) Gaussians from a copy of the frame scaled by this
             (SplaTAM-S uses 0.5); radii grow accordingly.
+        max_width: Gaussian budget: add them from a copy of the frame at most this wide (px; it
+            scales further where ``resolution_scale`` does not), so a map's density stops growing
+            with the camera's resolution (None = the frame's own width).
         initial_opacity: opacity of new Gaussians.
         max_new_per_frame: cap on Gaussians added per frame (random subset; None = no cap).
         min_spacing: Gaussian budget: a pixel adds no Gaussian when the map already holds one within
@@ -343,15 +346,32 @@ class DensifySettings:
             revisits then add only where the map has nothing (None = off, one per unexplained pixel).
         max_gaussians: hard cap on the map: before new Gaussians join, the least opaque leave so
             that the count stays at most this (None = no cap; classes locked by edits never leave).
+        front_window: pixels flagged by the depth test count as a mapped edge, not new geometry,
+            where some pixel within this window (odd, px) renders a depth not that far behind the
+            measurement: an edge renders a blend of foreground and background, deeper than the
+            measured foreground (1 = the reference's per-pixel test alone: no edges; with it every
+            revisit of a mapped edge adds Gaussians, and a long run's map grows without end).
+        revisit_radius_m: a frame revisits when a keyframe at least ``revisit_min_age`` frames
+            older was taken within this distance (m) and ``revisit_angle_deg`` of its optical axis;
+            there a mapped edge's pixels add no Gaussians (None = no frame revisits: edges always
+            add, as with the reference's test). Chosen so that no frame of TUM fr3/teddy or the
+            room's orbit revisits, while a looping camera does (BENCHMARKS.md, issue 27).
+        revisit_angle_deg: see ``revisit_radius_m``.
+        revisit_min_age: see ``revisit_radius_m`` (frames): the last keyframes always lie near.
     """
 
     sil_threshold: float = 0.5
     depth_error_factor: float = 50.0
     resolution_scale: float = 1.0
+    max_width: int | None = None
     initial_opacity: float = 0.5
     max_new_per_frame: int | None = None
     min_spacing: float | None = None
     max_gaussians: int | None = None
+    front_window: int = 3
+    revisit_radius_m: float | None = 0.2
+    revisit_angle_deg: float = 10.0
+    revisit_min_age: int = 30
 
     def __post_init__(self) -> None:
         if not 0 < self.resolution_scale <= 1:
@@ -365,6 +385,22 @@ class DensifySettings:
             raise ConfigError(f"densify.min_spacing must be > 0 or null, got {self.min_spacing}")
         if self.max_gaussians is not None and self.max_gaussians < 1:
             raise ConfigError(f"densify.max_gaussians must be >= 1 or null, got {self.max_gaussians}")
+        if self.revisit_radius_m is not None and not self.revisit_radius_m > 0:
+            raise ConfigError(f"densify.revisit_radius_m must be > 0 or null, got {self.revisit_radius_m}")
+        if not 0 < self.revisit_angle_deg <= 180:
+            raise ConfigError(f"densify.revisit_angle_deg must be in (0, 180], got {self.revisit_angle_deg}")
+        if self.revisit_min_age < 1:
+            raise ConfigError(f"densify.revisit_min_age must be >= 1, got {self.revisit_min_age}")
+        if self.front_window < 1 or self.front_window % 2 == 0:
+            raise ConfigError(f"densify.front_window must be odd and >= 1, got {self.front_window}")
+        if self.max_width is not None and self.max_width < 8:
+            raise ConfigError(f"densify.max_width must be >= 8 px or null, got {self.max_width}")
+
+    def scale_for(self, width: int) -> float:
+        """The scale of the frame copy Gaussians are added from, for frames ``width`` px wide (<= 1)."""
+        if self.max_width is None:
+            return self.resolution_scale
+        return min(self.resolution_scale, self.max_width / width)
 
 
 @dataclass(frozen=True)

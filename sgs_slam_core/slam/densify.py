@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -19,22 +20,48 @@ from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.edits import EditLocks
 
-__all__ = ["densify_frame", "densify_mask", "gaussians_from_pixels", "over_budget", "spaced"]
+__all__ = ["DensifyMask", "densify_frame", "densify_mask", "gaussians_from_pixels", "over_budget",
+           "shallowest", "spaced"]  # fmt: skip
 
 _CELL_BASE_M = 1e-3  # spacing cells are this times a power of two (m)
 
 
-def densify_mask(out: RenderOutput, frame: FrameTensors, s: DensifySettings) -> Tensor:  # [H, W] bool
+class DensifyMask(NamedTuple):
+    """The pixels needing new Gaussians, by reason ([H, W] bool each, disjoint)."""
+
+    empty: Tensor  # valid pixels the map leaves uncovered (silhouette below the threshold)
+    in_front: Tensor  # valid covered pixels measured in front of everything rendered around them
+    at_edge: Tensor  # valid covered pixels measured in front of their own rendered depth only
+
+    def union(self) -> Tensor:  # [H, W] bool
+        """Pixels flagged for any reason."""
+        return self.empty | self.in_front | self.at_edge
+
+
+def densify_mask(out: RenderOutput, frame: FrameTensors, s: DensifySettings) -> DensifyMask:
     """Pixels needing new Gaussians: silhouette below threshold, or new geometry in front.
 
     The depth test follows the reference: rendered depth greater than measured and the absolute
     error above ``depth_error_factor`` x the median error over all pixels (invalid ones as 0).
+    A flagged pixel counts as ``at_edge`` when, within ``front_window``, some pixel renders a depth
+    that is not that far behind the measurement: a mapped edge renders a blend of its foreground
+    and background, deeper than the measured foreground, while a neighbour renders the foreground.
     """
     sil, depth = out.silhouette.detach(), out.depth.detach()
     valid = frame.valid
     err = torch.where(valid, (frame.depth - depth).abs(), torch.zeros_like(depth))
-    in_front = (depth > frame.depth) & (err > s.depth_error_factor * err.median())
-    return valid & ((sil < s.sil_threshold) | in_front)
+    threshold = s.depth_error_factor * err.median()
+    flagged = valid & (depth > frame.depth) & (err > threshold) & ~(sil < s.sil_threshold)
+    if s.front_window > 1:
+        in_front = flagged & (shallowest(depth, s.front_window) - frame.depth > threshold)
+    else:
+        in_front = flagged
+    return DensifyMask(valid & (sil < s.sil_threshold), in_front, flagged & ~in_front)
+
+
+def shallowest(depth: Tensor, window: int) -> Tensor:  # [H, W] -> [H, W]
+    """The least depth within a ``window`` x ``window`` neighbourhood of each pixel (odd window)."""
+    return -torch.nn.functional.max_pool2d(-depth[None, None], window, stride=1, padding=window // 2)[0, 0]
 
 
 def gaussians_from_pixels(
@@ -90,10 +117,24 @@ def gaussians_from_pixels(
     )
 
 
+def _cell_index(points: Tensor, cell_m: float) -> Tensor:  # [..., 3] -> [..., 3] int64
+    return torch.floor(points / cell_m).long()
+
+
+def _index_keys(ijk: Tensor) -> Tensor:  # [..., 3] int64 -> [...] int64
+    """One integer per cell index (21 bits per axis: +-1 km at 1 mm)."""
+    ijk = ijk & 0x1FFFFF
+    return (ijk[..., 0] << 42) | (ijk[..., 1] << 21) | ijk[..., 2]
+
+
 def _cell_keys(points: Tensor, cell_m: float) -> Tensor:  # [M, 3] -> [M] int64
-    """One integer per cubic cell of ``cell_m`` metres (21 bits per axis: +-1 km at 1 mm)."""
-    ijk = torch.floor(points / cell_m).long() & 0x1FFFFF
-    return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
+    """One integer per cubic cell of ``cell_m`` metres."""
+    return _index_keys(_cell_index(points, cell_m))
+
+
+def _cell_levels(radii: Tensor, factor: float) -> Tensor:  # [M] -> [M] int64
+    """Cells of ``factor`` x radius, rounded up to 1 mm x a power of two: the power."""
+    return torch.ceil(torch.log2((factor * radii / _CELL_BASE_M).clamp_min(1.0))).long()
 
 
 def spaced(
@@ -107,7 +148,7 @@ def spaced(
     A candidate's cell is ``spacing`` x its radius, rounded up to 1 mm x a power of two, so the
     map keeps about one Gaussian per ``spacing`` footprints wherever it already has one, at any depth.
     """
-    level = torch.ceil(torch.log2((spacing * radii / _CELL_BASE_M).clamp_min(1.0))).long()
+    level = _cell_levels(radii, spacing)
     keep = torch.zeros(points.shape[0], dtype=torch.bool, device=points.device)
     means = existing.means.detach() if existing is not None and len(existing) else None
     for lv in torch.unique(level).tolist():
@@ -158,13 +199,18 @@ def densify_frame(
     c2w: np.ndarray,  # [4, 4] its estimated pose
     *,
     rendered: RenderOutput | None = None,  # ``gaussians`` already rendered from ``c2w``
+    revisit: bool = False,  # a keyframe saw this view long ago: a mapped edge adds nothing
     settings: DensifySettings,
     kernels: Kernels,
     codec: SemanticCodec,
     edits: EditLocks,
     generator: torch.Generator,
 ) -> tuple[GaussianMap, int]:  # the map with the new Gaussians, how many were added
-    """Add Gaussians where ``gaussians`` do not explain the frame (all of it for an empty map), within the budget."""
+    """Add Gaussians where ``gaussians`` do not explain the frame (all of it for an empty map), within the budget.
+
+    Pixels at a mapped edge (``densify_mask``) add Gaussians unless the view is a ``revisit``: a new
+    edge sharpens, and one seen from the same place before renders the same blend every time.
+    """
     device = data.depth.device
     c2w_t = torch.as_tensor(c2w, dtype=torch.float32, device=device)
     if len(gaussians) == 0:
@@ -173,12 +219,12 @@ def densify_frame(
         if rendered is None:
             with torch.no_grad():
                 rendered = kernels.render(gaussians, data.intrinsics, se3_inverse(c2w_t), with_semantics=False)
-        mask = densify_mask(rendered, data, settings)
+        reasons = densify_mask(rendered, data, settings)
+        mask = reasons.empty | reasons.in_front if revisit else reasons.union()
     source = data
-    if settings.resolution_scale < 1.0:
-        rgb, depth, labels, k = resize_arrays(
-            frame.rgb, frame.depth, frame.labels, frame.intrinsics, settings.resolution_scale
-        )
+    scale = settings.scale_for(frame.intrinsics.width)
+    if scale < 1.0:
+        rgb, depth, labels, k = resize_arrays(frame.rgb, frame.depth, frame.labels, frame.intrinsics, scale)
         source = FrameTensors.from_arrays(data.index, k, rgb, depth, labels, codec, device)
         source = source.with_ignore(edits.ignore_mask(source.labels))
         mask = torch.nn.functional.interpolate(mask[None, None].float(), size=k.shape, mode="nearest")[0, 0] > 0.5

@@ -65,6 +65,36 @@ def _thumbnail(labels: np.ndarray | None) -> np.ndarray | None:
     return labels[::step, ::step]
 
 
+class _Views:
+    """Frame index, camera centre and optical axis of every keyframe, in arrays that grow by doubling."""
+
+    def __init__(self) -> None:
+        self._index = np.zeros(16, np.int64)
+        self._centre = np.zeros((16, 3))
+        self._axis = np.zeros((16, 3))
+        self._n = 0
+
+    def add(self, index: int, w2c: np.ndarray) -> None:
+        if self._n == len(self._index):
+            self._index = np.resize(self._index, 2 * self._n)
+            self._centre = np.resize(self._centre, (2 * self._n, 3))
+            self._axis = np.resize(self._axis, (2 * self._n, 3))
+        rot = w2c[:3, :3]
+        self._index[self._n] = index
+        self._centre[self._n] = -rot.T @ w2c[:3, 3]
+        self._axis[self._n] = rot[2]  # the camera's z axis in the world
+        self._n += 1
+
+    def near(self, c2w: np.ndarray, up_to_index: int, radius_m: float, angle_deg: float) -> bool:
+        """Whether a view with frame index <= ``up_to_index`` lies within ``radius_m`` and ``angle_deg`` of ``c2w``."""
+        old = self._index[: self._n] <= up_to_index
+        if not old.any():
+            return False
+        close = np.linalg.norm(self._centre[: self._n][old] - c2w[:3, 3], axis=1) <= radius_m
+        aligned = self._axis[: self._n][old] @ c2w[:3, 2] >= np.cos(np.radians(angle_deg))
+        return bool((close & aligned).any())
+
+
 class KeyframeStore(Sequence[CompactFrame]):
     """Keyframes in insertion order (oldest first) under ``max_keyframes`` and ``max_megabytes``.
 
@@ -76,6 +106,7 @@ class KeyframeStore(Sequence[CompactFrame]):
         self.settings = settings
         self._entries: list[_Entry] = []
         self._poses: list[tuple[int, np.ndarray]] = []  # (frame index, w2c [4, 4]) of every keyframe added
+        self._views = _Views()  # camera centres and optical axes of the same keyframes, for revisits
         self._nbytes = 0
         self.evicted = 0
         for kf in frames:
@@ -111,6 +142,13 @@ class KeyframeStore(Sequence[CompactFrame]):
         """(frame index, c2w [4, 4]) of every keyframe added, evicted ones included, oldest first."""
         return [(i, np.linalg.inv(w2c)) for i, w2c in self._poses]
 
+    def revisited(self, c2w: np.ndarray, index: int, radius_m: float, angle_deg: float, min_age: int) -> bool:
+        """Whether a keyframe at least ``min_age`` frames before ``index`` was taken near the view ``c2w`` [4, 4].
+
+        Near: its camera centre within ``radius_m`` and its optical axis within ``angle_deg``.
+        """
+        return self._views.near(c2w, index - min_age, radius_m, angle_deg)
+
     # ------------------------------------------------------------------ adding and evicting
     def add(self, kf: CompactFrame) -> list[int]:
         """Keep ``kf`` (the newest keyframe); returns the frame indices of the keyframes it pushed out."""
@@ -118,6 +156,7 @@ class KeyframeStore(Sequence[CompactFrame]):
         self._score_against(entry)
         self._entries.append(entry)
         self._poses.append((kf.index, kf.w2c.copy()))
+        self._views.add(kf.index, kf.w2c)
         self._nbytes += kf.nbytes
         gone = []
         while self._over_cap():

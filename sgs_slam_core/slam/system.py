@@ -214,12 +214,17 @@ class Slam:
 
         ``rendered``: the map already rendered from ``c2w`` (tracking's last rendering), or None.
         """
+        d = self.config.densify
+        revisit = d.revisit_radius_m is not None and self.keyframes.revisited(
+            c2w, data.index, d.revisit_radius_m, d.revisit_angle_deg, d.revisit_min_age
+        )
         return densify_frame(
             self.gaussians,
             data,
             frame,
             c2w,
             rendered=rendered,
+            revisit=revisit,
             settings=self.config.densify,
             kernels=self.kernels,
             codec=self.codec,

@@ -171,3 +171,153 @@ def test_slam_keeps_the_map_under_its_gaussian_cap(tiny_scene):
     assert slam.num_gaussians > 1000
     with pytest.raises(ConfigError):
         DensifySettings(max_gaussians=0)
+
+
+def _codec():
+    from sgs_slam_core.labels import LabelTable
+    from sgs_slam_core.semantics import SemanticCodec, SemanticSettings
+
+    return SemanticCodec(SemanticSettings(), LabelTable.nyu40())
+
+
+def _tensors(index: int, depth: np.ndarray):
+    from sgs_slam_core.frame_data import FrameTensors
+
+    rgb = np.zeros((*depth.shape, 3), np.uint8)
+    return FrameTensors.from_arrays(index, K, rgb, depth, None, _codec(), torch.device("cpu"))
+
+
+def _surface(depth: np.ndarray, index: int = 0):
+    """One Gaussian per pixel with depth, seen from the origin by frame ``index``."""
+    from sgs_slam_core.slam.densify import gaussians_from_pixels
+
+    data = _tensors(index, depth)
+    return gaussians_from_pixels(data, torch.eye(4), data.valid, _codec().num_channels, DensifySettings())
+
+
+def _edge_scene():
+    """Rendered: a foreground (1 m) left of a background (3 m), a blended column between.
+
+    Measured: the same, the blended column being foreground, plus an 11 x 11 px box 2 m away in front
+    of the background. The map holds the foreground's Gaussians (born at frame 0).
+    """
+    from sgs_slam_core.render.output import RenderOutput
+
+    h, w = K.shape
+    rendered_depth = torch.full((h, w), 3.0)
+    rendered_depth[:, :32] = 1.0
+    rendered_depth[:, 32] = 2.0
+    measured = np.full(K.shape, 3.0, np.float32)
+    measured[:, :33] = 1.0
+    measured[10:21, 40:51] = 2.0
+    rendered = RenderOutput(torch.zeros(h, w, 3), rendered_depth, torch.ones(h, w), torch.zeros(h, w, 3))
+    foreground = np.where(np.arange(w) < 33, 1.0, 0.0).astype(np.float32)[None].repeat(h, 0)
+    return rendered, measured, _surface(foreground)
+
+
+def test_front_window_tells_a_mapped_edge_from_new_geometry_in_front():
+    from sgs_slam_core.slam.densify import densify_mask
+
+    rendered, measured, _ = _edge_scene()
+    data = _tensors(1, measured)
+    h = K.height
+    per_pixel = densify_mask(rendered, data, DensifySettings(depth_error_factor=0.1, front_window=1))
+    assert int(per_pixel.in_front.sum()) == h + 121 and not per_pixel.at_edge.any() and not per_pixel.empty.any()
+    windowed = densify_mask(rendered, data, DensifySettings(depth_error_factor=0.1, front_window=3))
+    assert int(windowed.in_front.sum()) == 121 and bool(windowed.in_front[10:21, 40:51].all())
+    assert int(windowed.at_edge.sum()) == h and bool(windowed.at_edge[:, 32].all())
+    for bad in ({"front_window": 2}, {"front_window": 0}):
+        with pytest.raises(ConfigError):
+            DensifySettings(**bad)
+
+
+def test_a_mapped_edge_adds_gaussians_except_on_a_revisit():
+    from sgs_slam_core.frame import Frame
+    from sgs_slam_core.slam.densify import densify_frame
+    from sgs_slam_core.slam.edits import EditLocks
+
+    rendered, measured, foreground = _edge_scene()
+    frame = Frame(np.zeros((*K.shape, 3), np.uint8), measured, K, index=5)
+
+    def added(revisit: bool, **settings) -> int:
+        s = DensifySettings(depth_error_factor=0.1, **settings)
+        return densify_frame(
+            foreground, _tensors(5, measured), frame, np.eye(4), rendered=rendered, revisit=revisit, settings=s,
+            kernels=None, codec=_codec(), edits=EditLocks(), generator=torch.Generator(),
+        )[1]  # fmt: skip
+
+    h = K.height
+    assert added(False) == added(False, front_window=1) == h + 121  # the reference: the blended column and the box
+    assert added(True) == 121  # seen from here before: the edge adds nothing, the box still does
+    assert added(True, front_window=1) == h + 121  # without the window nothing counts as an edge
+
+
+def test_a_view_near_an_old_keyframe_is_a_revisit():
+    store = KeyframeStore(KeyframeSettings(max_keyframes=None))
+    for i, yaw in enumerate((0, 90, 180)):
+        store.add(looking(10 * i, yaw))  # frames 0, 10, 20
+
+    def c2w(yaw_deg: float, x: float = 0.0) -> np.ndarray:
+        pose = np.linalg.inv(looking(0, yaw_deg).w2c)
+        pose[0, 3] = x
+        return pose
+
+    assert store.revisited(c2w(5), 40, 0.2, 10.0, 30)  # frame 0's view, 40 frames on
+    assert not store.revisited(c2w(5), 29, 0.2, 10.0, 30)  # frame 0 is not old enough yet
+    assert not store.revisited(c2w(15), 40, 0.2, 10.0, 30)  # turned too far
+    assert not store.revisited(c2w(5, x=0.3), 40, 0.2, 10.0, 30)  # moved too far
+    assert store.revisited(c2w(95), 40, 0.2, 10.0, 30)  # frame 10's view
+    assert not store.revisited(c2w(180), 40, 0.2, 10.0, 30)  # frame 20 is too recent
+    for _ in range(40):  # the arrays grow
+        store.add(looking(100, 270))
+    assert store.revisited(c2w(0), 200, 0.2, 10.0, 30) and store.revisited(c2w(270), 200, 0.2, 10.0, 30)
+    for bad in ({"revisit_radius_m": 0.0}, {"revisit_angle_deg": 0.0}, {"revisit_min_age": 0}):
+        with pytest.raises(ConfigError):
+            DensifySettings(**bad)
+
+
+def test_revisits_add_few_gaussians(tiny_scene):
+    """The tiny scene's first 8 frames there and back: the way back sees what the way out mapped."""
+    data = open_dataset(tiny_scene)
+    out_frames = 8
+    way = [*range(out_frames), *range(out_frames - 2, -1, -1)]
+
+    def growth_on_the_way_back(*extra: str) -> int:
+        slam = Slam(load_config("synthetic", overrides=[*FAST_SLAM, *extra]), data.label_table)
+        for n, i in enumerate(way):
+            slam.process(dataclasses.replace(data[i], stamp_ns=n * 10**8))
+            if n == out_frames - 1:
+                out = slam.num_gaussians
+        return slam.num_gaussians - out
+
+    reference = growth_on_the_way_back("densify.front_window=1")
+    revisits = growth_on_the_way_back("densify.revisit_min_age=2")
+    assert revisits < 0.25 * reference, (revisits, reference)
+
+
+def test_max_width_densifies_from_a_smaller_copy_of_wide_frames_only():
+    from sgs_slam_core.frame import Frame
+    from sgs_slam_core.gaussians import GaussianMap
+    from sgs_slam_core.slam.densify import densify_frame
+    from sgs_slam_core.slam.edits import EditLocks
+
+    assert DensifySettings(max_width=320).scale_for(640) == 0.5
+    assert DensifySettings(max_width=320).scale_for(160) == 1.0
+    assert DensifySettings(max_width=320, resolution_scale=0.25).scale_for(640) == 0.25
+    with pytest.raises(ConfigError):
+        DensifySettings(max_width=4)
+    frame = Frame(np.zeros((*K.shape, 3), np.uint8), np.full(K.shape, 2.0, np.float32), K)
+    codec = _codec()
+    data = _tensors(0, frame.depth)
+    empty = GaussianMap.empty(codec.num_channels)
+
+    def first_frame(max_width: int) -> GaussianMap:
+        return densify_frame(
+            empty, data, frame, np.eye(4), settings=DensifySettings(max_width=max_width), kernels=None,
+            codec=codec, edits=EditLocks(), generator=torch.Generator(),
+        )[0]  # fmt: skip
+
+    assert len(first_frame(64)) == 64 * 48
+    half = first_frame(32)
+    assert len(half) == 32 * 24
+    assert torch.allclose(half.log_scales.exp(), torch.tensor(2.0 / 25.0))  # two pixels' footprint at 2 m
