@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from bench.bench_slam import LABELS, profile_frames, profile_table
+from bench.bench_slam import LABELS, ops_table, profile_frames, profile_table
 from bench.plot import Series, line_chart, line_panel, save_panels
 from sgs_slam_core.config import load_config
 from sgs_slam_core.datasets import open_dataset
@@ -15,7 +15,8 @@ from ..conftest import FAST_SLAM
 
 def test_profile_breaks_frames_down_by_the_pipeline_labels(tiny_scene):
     config = load_config("synthetic", overrides=[*FAST_SLAM, "device=cpu"])
-    rows, wall_ms = profile_frames(open_dataset(tiny_scene), config, warmup=2, count=2)
+    prof = profile_frames(open_dataset(tiny_scene), config, warmup=2, count=2)
+    rows, wall_ms = prof.rows, prof.wall_ms
     found = {r.label: r for r in rows}
     for label in ("track.render", "track.backward", "map.render", "map.backward", "densify", "upload"):
         assert label in found and found[label].host_ms > 0, label
@@ -24,6 +25,11 @@ def test_profile_breaks_frames_down_by_the_pipeline_labels(tiny_scene):
     assert sum(r.host_ms for r in rows) < wall_ms  # labels do not nest, so they cannot exceed the frame time
     table = profile_table(rows, wall_ms, "cpu")
     assert "| track.render |" in table and "unlabelled" in table
+    assert prof.top_ops and all(op.label not in LABELS for op in prof.top_ops)
+    assert prof.top_ops[0].host_ms >= prof.top_ops[-1].host_ms > 0  # the busiest first
+    assert prof.syncs["aten::_local_scalar_dense"] > 0  # the CPU path reads values back too (.item())
+    ops = ops_table(prof)
+    assert f"| `{prof.top_ops[0].label}` |" in ops and "Host waits on the device per frame" in ops
 
 
 def test_line_chart_is_labelled_and_draws_each_series(tmp_path):
@@ -44,3 +50,19 @@ def test_line_chart_is_labelled_and_draws_each_series(tmp_path):
     assert blue.sum() > 100 and red.sum() > 100  # BGR image: each line in its colour
     save_panels(tmp_path / "p.png", [panel, panel])
     assert cv2.imread(str(tmp_path / "p.png")).shape == (400, 400, 3)
+
+
+def test_accuracy_summary_pairs_variants_by_seed():
+    from bench.bench_accuracy import METRICS, Variant, summary
+
+    assert Variant.parse("base") == Variant("base", ())
+    assert Variant.parse("w:densify.front_window=1,seed=3") == Variant("w", ("densify.front_window=1", "seed=3"))
+    keys = [key for key, _, _ in METRICS]
+    values = {
+        "a": {key: [1.0, 2.0, 3.0] for key in keys},
+        "b": {key: [1.5, 2.5, 3.5] for key in keys} | {"miou": [float("nan")] * 3},
+    }
+    table = summary(values, ["a", "b"])
+    assert "| a | 2 ± 1 |" in table
+    assert "2.5 ± 1 (Δ +0.5 ± 0)" in table  # the same shift at every seed: no spread in the difference
+    assert table.splitlines()[-1].count("| - |") == 1  # mIoU: nothing measured
