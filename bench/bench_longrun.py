@@ -9,7 +9,9 @@ increasing stamps. Every ``--every`` frames the resident set size, the Gaussians
 bench/results/, prints a per-loop table and appends it to BENCHMARKS.md.
 
     python bench/bench_longrun.py [--width 640 --height 480] [--frames 2000] [--loop-frames 120]
-        [--tracking-iterations N] [--mapping-iterations N] [--set key=value ...] [--no-append]
+        [--tracking-iterations N] [--mapping-iterations N] [--device cuda] [--set key=value ...] [--no-append]
+
+Ctrl-C or SIGTERM (``timeout``) ends the run early; what was measured is still reported.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import argparse
 import json
 import os
 import resource
+import signal
 import sys
 import tempfile
 import time
@@ -25,10 +28,11 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import REPO, append_section, commit, markdown_table
+from bench.common import REPO, append_section, commit, generate_apart, markdown_table
 from bench.plot import Series, line_panel, save_panels
 from sgs_slam_core.config import load_config
 from sgs_slam_core.config.schema import SlamConfig
@@ -37,7 +41,7 @@ from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.metrics import ate
 from sgs_slam_core.slam.footprint import footprint
 from sgs_slam_core.slam.system import Slam
-from sgs_slam_core.synthetic import SynthConfig, generate
+from sgs_slam_core.synthetic import SynthConfig
 
 RESULTS = REPO / "bench" / "results"
 
@@ -56,6 +60,7 @@ class Sample:
     evicted: int
     s_per_frame: float  # mean Slam.process wall time over the frames since the last sample
     cpu_s_per_frame: float  # the same in CPU time of this process (all threads): steadier on a shared machine
+    gpu_peak_mb: float  # highest CUDA memory allocated by torch so far (0 on the CPU)
 
 
 @dataclass(frozen=True)
@@ -71,6 +76,7 @@ class LoopRow:
     keyframe_mb: float
     s_per_frame: float
     cpu_s_per_frame: float
+    gpu_peak_mb: float
     ate_cm: float
 
 
@@ -82,6 +88,11 @@ def rss_mb() -> float:
 def peak_rss_mb() -> float:
     """Highest resident memory of this process so far (MB; Linux reports KiB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def gpu_peak_mb(device: str) -> float:
+    """Highest memory torch has allocated on ``device`` so far (MB; 0 off CUDA)."""
+    return torch.cuda.max_memory_allocated(device) / 2**20 if device.startswith("cuda") else 0.0
 
 
 def order(loop_frames: int, count: int) -> list[int]:
@@ -128,6 +139,7 @@ def _loop(slam: Slam, dataset: Dataset, count: int, every: int, est: list, gt: l
                     fp.keyframes_evicted,
                     spent / done,
                     cpu / done,
+                    gpu_peak_mb(slam.config.device),
                 )
             )
             spent = cpu = 0.0
@@ -135,7 +147,8 @@ def _loop(slam: Slam, dataset: Dataset, count: int, every: int, est: list, gt: l
             print(
                 f"{s.frames:6d} frames  {s.rss_mb:7.0f} MB (peak {s.peak_rss_mb:.0f})  {s.gaussians:8,d} G "
                 f"({s.gaussian_mb:.0f} MB)  {s.keyframes:4d} kf ({s.keyframe_mb:.0f} MB, {s.evicted} evicted)  "
-                f"{s.s_per_frame:.2f} s/frame ({s.cpu_s_per_frame:.2f} CPU s)",
+                f"{s.s_per_frame:.2f} s/frame ({s.cpu_s_per_frame:.2f} CPU s)"
+                + (f"  GPU peak {s.gpu_peak_mb:.0f} MB" if s.gpu_peak_mb else ""),
                 flush=True,
             )
 
@@ -159,6 +172,7 @@ def per_loop(samples: list[Sample], est: np.ndarray, gt: np.ndarray, period: int
                 float(np.mean([s.keyframe_mb for s in inside])),
                 float(np.mean([s.s_per_frame for s in inside])),
                 float(np.mean([s.cpu_s_per_frame for s in inside])),
+                max(s.gpu_peak_mb for s in inside),
                 100 * ate(est[lo:hi], gt[lo:hi]).rmse,
             )
         )
@@ -226,6 +240,7 @@ def report(rows: list[LoopRow], samples: list[Sample], plot_path: Path, what: st
             "keyframe MB",
             "s/frame",
             "CPU s/frame",
+            "GPU peak MB",
             "ATE cm",
         ],
         [
@@ -239,6 +254,7 @@ def report(rows: list[LoopRow], samples: list[Sample], plot_path: Path, what: st
                 f"{r.keyframe_mb:.1f}",
                 f"{r.s_per_frame:.2f}",
                 f"{r.cpu_s_per_frame:.2f}",
+                f"{r.gpu_peak_mb:.0f}" if r.gpu_peak_mb else "-",
                 f"{r.ate_cm:.2f}",
             ]
             for r in rows
@@ -261,6 +277,16 @@ def report(rows: list[LoopRow], samples: list[Sample], plot_path: Path, what: st
     )
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _tracking(config: SlamConfig) -> str:
+    """The tracker and its iterations, as the report names them."""
+    t = config.tracking
+    return f"Adam ({t.adam.iterations} iterations)" if t.method == "adam" else f"{t.method.replace('_', '-')}"
+
+
 def main() -> int:
     """Render the orbit, run it long, report."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -269,6 +295,7 @@ def main() -> int:
     p.add_argument("--frames", type=int, default=2000, help="frames processed in all")
     p.add_argument("--loop-frames", type=int, default=120, help="orbit frames rendered (1.5 degrees apart)")
     p.add_argument("--preset", default="synthetic")
+    p.add_argument("--device", default="cpu", help="cpu or cuda")
     p.add_argument("--tracking-iterations", type=int, help="reduced for time (the report says so)")
     p.add_argument("--mapping-iterations", type=int, help="reduced for time (the report says so)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config overrides")
@@ -276,7 +303,8 @@ def main() -> int:
     p.add_argument("--tag", default="", help="appended to the result files' names")
     p.add_argument("--no-append", action="store_true", help="print only; leave BENCHMARKS.md alone")
     args = p.parse_args()
-    overrides = ["device=cpu", *args.set]
+    signal.signal(signal.SIGTERM, _interrupt)  # `timeout` ends the run like Ctrl-C: the report still comes
+    overrides = [f"device={args.device}", *args.set]
     if args.tracking_iterations is not None:
         overrides.append(f"tracking.adam.iterations={args.tracking_iterations}")
     if args.mapping_iterations is not None:
@@ -286,7 +314,7 @@ def main() -> int:
     size = f"{args.width}x{args.height}"
     with tempfile.TemporaryDirectory() as tmp:
         orbit = SynthConfig(width=args.width, height=args.height, frames=args.loop_frames)
-        scene = generate(Path(tmp) / "orbit", orbit)
+        scene = generate_apart(Path(tmp) / "orbit", orbit)
         samples, est, gt = run(open_dataset(scene), config, args.frames, args.every)
     period = 2 * (args.loop_frames - 1)
     rows = per_loop(samples, est, gt, period)
@@ -306,8 +334,8 @@ def main() -> int:
     )
     what = (
         f"The synthetic room's orbit ({args.loop_frames} frames at {size}, there and back: {period} frames a "
-        f"loop) for {args.frames:,} frames through `Slam.process` (lockstep, CPU), preset `{args.preset}`, "
-        f"tracking {config.tracking.adam.iterations} and mapping {config.mapping.iterations} iterations"
+        f"loop) for {len(est):,} of {args.frames:,} frames through `Slam.process` (lockstep, {args.device}), "
+        f"preset `{args.preset}`, {_tracking(config)} tracking and {config.mapping.iterations} mapping iterations"
         f"{' (reduced for time)' if args.tracking_iterations or args.mapping_iterations else ''}; keyframes "
         f"capped at {config.keyframes.max_keyframes} / {config.keyframes.max_megabytes} MiB."
     )

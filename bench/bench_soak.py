@@ -26,11 +26,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
-from bench.common import REPO, append_section, markdown_table
+from bench.common import REPO, append_section, generate_apart, markdown_table
 from bench.plot import Series, line_panel, save_panels
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.slam.footprint import footprint
-from sgs_slam_core.synthetic import SynthConfig, generate, preset_config
+from sgs_slam_core.synthetic import SynthConfig, preset_config
 from test.ros.helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames, wait_for
 
 RESULTS = REPO / "bench" / "results"
@@ -45,6 +45,7 @@ class Sample:
     rss_mb: float
     gaussians: int
     tracked: int
+    failed: int  # tracked, but flagged by the failure guard (not mapped)
     keyframes: int
     keyframe_mb: float  # host bytes of the keyframes' images held
     drops: int
@@ -63,8 +64,11 @@ def stream(frames: list[Frame], count: int, rate_hz: float):
         yield i, replace(frames[order[i % len(order)]], stamp_ns=10**9 + round(i * 1e9 / rate_hz))
 
 
-def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -> list[Sample]:
-    """Publish ``count`` frames into an in-process slam_node and sample it every ``every`` frames."""
+def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -> tuple[list[Sample], str]:
+    """Publish ``count`` frames into an in-process slam_node, sampling it every ``every`` frames.
+
+    Returns the samples and the tracker the node ran.
+    """
     from sgs_slam_ros.slam_node import build_slam_nodes  # noqa: PLC0415 - rclpy only when running
 
     frames = tiny_frames(scene)  # depth in millimetres, as a 16UC1 camera delivers it
@@ -81,8 +85,9 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
     )
     nodes = build_slam_nodes(context=ctx, parameter_overrides=params)
     feeder = Feeder(ctx)
-    spinner = Spinner(ctx, [*nodes, feeder])
+    spinner = Spinner(ctx, [*nodes, feeder], threads=1)  # as `ros2 run` spins the nodes
     tracking = nodes[0]
+    tracker = tracking.pipeline.slam.config.tracking.method
     samples: list[Sample] = []
     try:
         assert wait_for(feeder.connected, 20.0), "slam_node did not subscribe"
@@ -99,6 +104,7 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
                     rss_mb(),
                     held.gaussians,
                     st.tracked,
+                    st.tracking_failures,
                     held.keyframes,
                     held.keyframe_bytes / 2**20,
                     drops,
@@ -107,7 +113,7 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
             )
             print(
                 f"{published:6d} frames  {samples[-1].rss_mb:7.1f} MB  {slam.num_gaussians:6d} G  "
-                f"{st.tracked:5d} tracked  {len(slam.keyframes):4d} keyframes",
+                f"{st.tracked:5d} tracked ({st.tracking_failures} failed)  {len(slam.keyframes):4d} keyframes",
                 flush=True,
             )
 
@@ -122,10 +128,12 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
         tracking.pipeline.wait_idle(60.0)
     finally:
         shut_down(ctx, [*nodes, feeder], spinner)
-    return samples
+    return samples, tracker
 
 
-def report(samples: list[Sample], count: int, rate_hz: float, iterations: int, size: str, loop: int) -> str:
+def report(
+    samples: list[Sample], count: int, rate_hz: float, iterations: int, size: str, loop: int, tracker: str
+) -> str:
     """Markdown: the plot, a table every 10 % of the stream, and the growth after the first tenth."""
     every = samples[1].frames - samples[0].frames
     panels = [
@@ -159,6 +167,7 @@ def report(samples: list[Sample], count: int, rate_hz: float, iterations: int, s
             f"{s.rss_mb:.0f}",
             f"{s.gaussians:,}",
             f"{s.tracked:,}",
+            f"{s.failed:,}",
             s.keyframes,
             f"{s.keyframe_mb:.1f}",
             f"{s.drops:,}",
@@ -169,12 +178,12 @@ def report(samples: list[Sample], count: int, rate_hz: float, iterations: int, s
     tenth = samples[max(1, len(samples) // 10)]
     last = samples[-1]
     per_k = (last.rss_mb - tenth.rss_mb) / max((last.frames - tenth.frames) / 1000, 1e-9)
-    table = markdown_table(
-        ["frames published", "s", "RSS MB", "Gaussians", "tracked", "keyframes", "keyframe MB", "drops", "errors"], rows
-    )
+    headers = ["frames published", "s", "RSS MB", "Gaussians", "tracked", "failed", "keyframes", "keyframe MB"]
+    table = markdown_table([*headers, "drops", "errors"], rows)
     return (
         f"slam_node in live mode (best-effort input, outputs on) fed {count:,} frames of a synthetic scene "
-        f"({size}, {loop} frames back and forth) at {rate_hz:g} Hz; tracking and mapping {iterations} iterations. "
+        f"({size}, {loop} frames back and forth) at {rate_hz:g} Hz; {tracker.replace('_', '-')} tracking"
+        f"{f' ({iterations} iterations)' if tracker == 'adam' else ''}, {iterations} mapping iterations. "
         f"Peak resident memory {max(s.rss_mb for s in samples):.0f} MB; from {tenth.frames:,} to {last.frames:,} "
         f"frames it went "
         f"{tenth.rss_mb:.0f} -> {last.rss_mb:.0f} MB ({per_k:+.2f} MB per 1,000 frames) while the map held "
@@ -189,7 +198,7 @@ def main() -> int:
     parser.add_argument("--frames", type=int, default=10_000)
     parser.add_argument("--rate-hz", type=float, default=100.0)
     parser.add_argument("--every", type=int, default=50, help="sample every N frames")
-    parser.add_argument("--iterations", type=int, default=5, help="tracking and mapping iterations")
+    parser.add_argument("--iterations", type=int, default=5, help="mapping iterations (and the Adam tracker's)")
     parser.add_argument("--width", type=int, help="play the room's orbit at this size instead of the tiny scene")
     parser.add_argument("--height", type=int)
     parser.add_argument("--loop-frames", type=int, default=120, help="orbit frames (with --width/--height)")
@@ -199,9 +208,9 @@ def main() -> int:
     synth = preset_config("tiny") if args.width is None else SynthConfig(args.width, height, args.loop_frames)
     size = f"{synth.width}x{synth.height}"
     with tempfile.TemporaryDirectory() as tmp:
-        scene = generate(Path(tmp) / "scene", synth)
-        samples = soak(scene, args.frames, args.rate_hz, args.every, args.iterations)
-    body = report(samples, args.frames, args.rate_hz, args.iterations, size, synth.frames)
+        scene = generate_apart(Path(tmp) / "scene", synth)
+        samples, tracker = soak(scene, args.frames, args.rate_hz, args.every, args.iterations)
+    body = report(samples, args.frames, args.rate_hz, args.iterations, size, synth.frames, tracker)
     print(body)
     if not args.no_append:
         append_section(f"Soak: slam_node, {args.frames:,} frames ({size})", body)

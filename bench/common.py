@@ -4,14 +4,18 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import multiprocessing
 import os
 import platform
 import shlex
 import subprocess
 import sys
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import torch
+
+from sgs_slam_core.synthetic import SynthConfig, generate
 
 REPO = Path(__file__).resolve().parents[1]
 BENCHMARKS_MD = REPO / "BENCHMARKS.md"
@@ -78,3 +82,11 @@ def append_section(title: str, body: str) -> None:
         target.write_text("# Benchmarks\n\nEvery section is appended by a script in `bench/`.\n")
     with target.open("a") as f:
         f.write(header + body.rstrip() + "\n")
+
+
+def generate_apart(path: Path, config: SynthConfig) -> Path:
+    """``synthetic.generate`` in a child process: a memory benchmark measures the SLAM, not the scene
+    rendering (its arrays would stay in this process's heap)."""
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+        return pool.submit(generate, path, config).result()

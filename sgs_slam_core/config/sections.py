@@ -355,7 +355,7 @@ class DensifySettings:
             older was taken within this distance (m) and ``revisit_angle_deg`` of its optical axis;
             there a mapped edge's pixels add no Gaussians (None = no frame revisits: edges always
             add, as with the reference's test). Chosen so that no frame of TUM fr3/teddy or the
-            room's orbit revisits, while a looping camera does (BENCHMARKS.md, issue 27).
+            room's orbit revisits, while a looping camera does.
         revisit_angle_deg: see ``revisit_radius_m``.
         revisit_min_age: see ``revisit_radius_m`` (frames): the last keyframes always lie near.
     """
@@ -466,6 +466,9 @@ class GuardSettings:
         loss_jump: flag when the per-pixel tracking loss exceeds this times the recent median.
         min_valid_fraction: flag when fewer pixels than this are both measured and well mapped.
         min_residual_m: residuals below this never flag (noise floor).
+        retry: a flagged frame is tracked once more from the last accepted pose (without the
+            motion prediction, refined by the motion ICP when that is on), and accepted if that
+            passes; a camera that reversed, or came back after a loss, is found again.
     """
 
     enabled: bool = True
@@ -475,6 +478,7 @@ class GuardSettings:
     loss_jump: float = 6.0
     min_valid_fraction: float = 0.05
     min_residual_m: float = 0.02
+    retry: bool = True
 
     def __post_init__(self) -> None:
         _positive("guard", history=self.history, residual_jump=self.residual_jump, loss_jump=self.loss_jump)

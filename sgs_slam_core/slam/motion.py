@@ -1,4 +1,7 @@
-"""Where tracking starts: constant velocity over the last two poses, refined by depth ICP after dropped frames."""
+"""Where tracking starts: constant velocity, refined by depth ICP after dropped frames.
+
+Only accepted poses count; a rejected frame is tracked again from the fallback start.
+"""
 
 from __future__ import annotations
 
@@ -42,6 +45,19 @@ class MotionModel:
         prev2 = poses[-2] if len(poses) > 1 and self.settings.constant_velocity else None
         c2w = predict_constant_velocity(prev, prev2, self._motion_fraction(stamp_ns))
         if self._icp is not None and self._intervals_since_last(stamp_ns) >= self.settings.icp_min_gap:
+            c2w, _ = self._icp.refine(torch.where(data.valid, data.depth, 0.0), data.intrinsics, c2w)
+        return c2w
+
+    def fallback(self, data: FrameTensors) -> np.ndarray | None:  # c2w [4, 4]
+        """A second start for a frame whose tracking failed; None before any pose.
+
+        The last accepted pose without motion, refined by the ICP against the last accepted frame
+        when the ICP is on.
+        """
+        if not self._history:
+            return None
+        c2w = self._history[-1][1].copy()
+        if self._icp is not None:
             c2w, _ = self._icp.refine(torch.where(data.valid, data.depth, 0.0), data.intrinsics, c2w)
         return c2w
 

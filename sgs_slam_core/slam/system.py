@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -30,12 +31,14 @@ from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.densify import densify_frame, scene_radius
 from sgs_slam_core.slam.edits import EditLocks
 from sgs_slam_core.slam.guard import TrackingGuard
+from sgs_slam_core.slam.heap import release_free_heap
 from sgs_slam_core.slam.keyframe_store import KeyframeStore
 from sgs_slam_core.slam.keyframes import is_keyframe
 from sgs_slam_core.slam.map_frame import MapFrameChoice, MapFramePolicy
 from sgs_slam_core.slam.mapper import MapStats, WindowFrame, map_window
 from sgs_slam_core.slam.motion import MotionModel
 from sgs_slam_core.slam.outcomes import MapOutcome, StepResult, TrackOutcome
+from sgs_slam_core.slam.tracker import TrackResult
 from sgs_slam_core.slam.trackers import build_tracker
 from sgs_slam_core.slam.window import choose_window, upload_window
 
@@ -143,14 +146,32 @@ class Slam:
             init_c2w = self.motion.predict(frame.stamp_ns, data)
             use_sem = frame.labels is not None and self.config.tracking.weight_semantic > 0
             result = self.tracker.track(self.gaussians, data, np.linalg.inv(init_c2w), use_sem, newer_frame_waiting)
-            c2w = np.linalg.inv(result.w2c)
             failure = self.guard.check(result.depth_residual_m, result.loss_per_pixel, result.valid_fraction)
+            if failure is not None and self.config.guard.retry:
+                result, failure = self._retried(data, use_sem, result, failure)
+            c2w = np.linalg.inv(result.w2c)
         if failure is None and data is None and self.motion.uses_icp:
             data = self._frame_tensors(frame, index)  # the next frame's ICP reference; mapping reuses it
-        self.motion.observe(frame.stamp_ns, c2w, data if failure is None else None)
+        if failure is None:  # a failed pose would become the prior, and a lost camera would run away
+            self.motion.observe(frame.stamp_ns, c2w, data)
         self._append_pose(index, frame.stamp_ns, c2w)
         self.failures += int(failure is not None)
         return TrackOutcome(index, frame.stamp_ns, c2w, result, failure, time.perf_counter() - t0, data, choice)
+
+    def _retried(
+        self, data: FrameTensors, use_sem: bool, failed: TrackResult, failure: str
+    ) -> tuple[TrackResult, str | None]:
+        """A failed frame tracked again from the motion model's fallback start; the first result if that fails too."""
+        start = self.motion.fallback(data)
+        if start is None:
+            return failed, failure
+        result = self.tracker.track(self.gaussians, data, np.linalg.inv(start), use_sem)
+        if self.guard.judge(result.depth_residual_m, result.loss_per_pixel, result.valid_fraction) is not None:
+            return failed, failure
+        self.guard.accept(result.depth_residual_m, result.loss_per_pixel)
+        renders = (failed.renders or failed.iterations) + (result.renders or result.iterations)
+        spent = {"iterations": failed.iterations + result.iterations, "renders": renders}
+        return replace(result, time_s=failed.time_s + result.time_s, **spent), None
 
     def register(self, frame: Frame, c2w: np.ndarray) -> TrackOutcome:
         """Accept a pose estimated elsewhere (a separate tracking process) for ``frame``."""
@@ -204,6 +225,8 @@ class Slam:
             before_publish()
         self.gaussians = gaussians
         keyframe = self._keep_keyframe(frame, tracked)
+        if keyframe:  # freed tensors' pages go back to the OS: the resident size stays as flat as the live data
+            release_free_heap()
         timings["map"] = time.perf_counter() - t0
         return MapOutcome(stats, window, keyframe, added, timings["map"], timings)
 

@@ -66,3 +66,24 @@ def test_accuracy_summary_pairs_variants_by_seed():
     assert "| a | 2 ± 1 |" in table
     assert "2.5 ± 1 (Δ +0.5 ± 0)" in table  # the same shift at every seed: no spread in the difference
     assert table.splitlines()[-1].count("| - |") == 1  # mIoU: nothing measured
+
+
+def test_long_run_loops_report_their_means_and_the_drift_from_loop_two(tmp_path):
+    from bench.bench_longrun import RESULTS, Sample, drift, order, per_loop, report
+
+    assert order(4, 8) == [0, 1, 2, 3, 2, 1, 0, 1]  # there and back: a loop is 2 * (4 - 1) frames
+    period = 6
+    samples = []
+    for f in range(2, 3 * period + 1, 2):
+        later = f > period  # loops 2 and 3 hold more than loop 1, and the same as each other
+        rss, gaussians = 400.0 + 10 * later, 1000 + 50 * later
+        samples.append(Sample(f, rss, 410.0, gaussians, 1.0, 4, 0.5, 0, 1.0, 0.9, 800.0 + f))
+    est = np.stack([np.eye(4)] * 3 * period)
+    gt = est.copy()
+    rows = per_loop(samples, est, gt, period)
+    assert [r.loop for r in rows] == [1, 2, 3] and rows[0].frames == "1-6"
+    assert rows[0].gaussians == 1000 and rows[1].gaussians == rows[2].gaussians == 1050
+    assert rows[2].gpu_peak_mb == 800.0 + 3 * period  # the highest of the loop's samples
+    assert drift(rows, "gaussians") == 0.0 and drift(rows, "rss_mb") == 0.0
+    body = report(rows, samples, RESULTS / "x.png", "What ran.")
+    assert "| GPU peak MB |" in body and "| 818 |" in body and "Gaussians 0.0 %" in body

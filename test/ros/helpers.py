@@ -13,7 +13,7 @@ import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import Executor, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -77,10 +77,19 @@ def wait_for(predicate: Callable[[], bool], timeout: float) -> bool:
 
 
 class Spinner:
-    """A MultiThreadedExecutor spinning the given nodes in a background thread."""
+    """An executor spinning the given nodes in a background thread.
 
-    def __init__(self, ctx: Context, nodes: list[Node]) -> None:
-        self.executor = MultiThreadedExecutor(num_threads=4, context=ctx)
+    ``threads=1`` is the executor ``ros2 run`` uses (single-threaded); rclpy's multi-threaded one
+    busy-polls while a callback group is busy and messages keep arriving, which starves the SLAM
+    threads of the GIL under a sustained stream (the soak benchmark).
+    """
+
+    def __init__(self, ctx: Context, nodes: list[Node], threads: int = 4) -> None:
+        self.executor: Executor = (
+            SingleThreadedExecutor(context=ctx)
+            if threads == 1
+            else MultiThreadedExecutor(num_threads=threads, context=ctx)
+        )
         for n in nodes:
             self.executor.add_node(n)
         self._stopping = threading.Event()

@@ -13,6 +13,7 @@ from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.errors import FrameError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.metrics import ConfusionMatrix, ate
+from sgs_slam_core.slam.pose import predict_constant_velocity
 from sgs_slam_core.slam.system import Slam
 
 from ..conftest import FAST_SLAM
@@ -117,7 +118,8 @@ def test_bad_frames_raise_clear_errors(tiny):
 
 
 def test_tracking_failure_is_flagged_and_the_map_kept(tiny):
-    slam = Slam(load_config("synthetic", overrides=[*FAST_SLAM, "guard.warmup_frames=1"]), tiny.label_table)
+    overrides = [*FAST_SLAM, "guard.warmup_frames=1", "motion.icp_iterations=[0]"]  # the prior alone
+    slam = Slam(load_config("synthetic", overrides=overrides), tiny.label_table)
     for i in range(4):
         slam.process(tiny[i])
     before = slam.gaussians.state_dict()
@@ -129,8 +131,33 @@ def test_tracking_failure_is_flagged_and_the_map_kept(tiny):
     after = slam.gaussians.state_dict()
     assert all(torch.equal(before[k], after[k]) for k in before)
     assert slam.failures == 1
+    # The motion prior continues from the accepted poses, not from where the failed one ended.
+    accepted = slam.trajectory[-3][2], slam.trajectory[-2][2]
+    data = slam._frame_tensors(tiny[5], 5)
+    start = slam.motion.predict(tiny[5].stamp_ns, data)
+    expected = predict_constant_velocity(accepted[1], accepted[0], 2.0)  # two frame intervals on
+    assert np.allclose(start, expected, atol=1e-6)
     good = slam.process(tiny[5])
     assert not good.track.failed
+
+
+@pytest.mark.parametrize("retry", [True, False])
+def test_a_failed_frame_is_tracked_again_from_the_last_accepted_pose(tiny, retry):
+    overrides = [*FAST_SLAM, "guard.warmup_frames=1", f"guard.retry={str(retry).lower()}"]
+    slam = Slam(load_config("synthetic", overrides=overrides), tiny.label_table)
+    for i in range(4):
+        slam.process(tiny[i])
+    off = np.eye(4)
+    off[:3, 3] = [0.6, 0.0, 0.0]  # a start far off, as after a reversal the motion prior is
+    predict = slam.motion.predict
+    slam.motion.predict = lambda stamp, data: predict(stamp, data) @ off
+    step = slam.process(tiny[4])
+    assert step.track.failed is not retry
+    gt = np.linalg.inv(tiny[0].gt_c2w) @ tiny[4].gt_c2w
+    if retry:
+        assert np.linalg.norm(step.c2w[:3, 3] - gt[:3, 3]) < 0.05
+        assert step.track.result.iterations > slam.config.tracking.adam.iterations  # both attempts counted
+    assert slam.failures == int(not retry)
 
 
 def test_gt_pose_mode(tiny):
