@@ -20,6 +20,7 @@ import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,6 +33,9 @@ from sgs_slam_core.frame import Frame
 from sgs_slam_core.slam.footprint import footprint
 from sgs_slam_core.synthetic import SynthConfig, preset_config
 from test.ros.helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames, wait_for
+
+if TYPE_CHECKING:
+    from sgs_slam_ros.tracking_node import TrackingNode
 
 RESULTS = REPO / "bench" / "results"
 
@@ -64,6 +68,24 @@ def stream(frames: list[Frame], count: int, rate_hz: float):
         yield i, replace(frames[order[i % len(order)]], stamp_ns=10**9 + round(i * 1e9 / rate_hz))
 
 
+def _sample(tracking: TrackingNode, published: int, elapsed_s: float) -> Sample:
+    """The tracking node's state now, as /diagnostics counts it."""
+    st, slam, a = tracking.pipeline.stats, tracking.pipeline.slam, tracking.assembler
+    held = footprint(slam)
+    return Sample(
+        published,
+        elapsed_s,
+        rss_mb(),
+        held.gaussians,
+        st.tracked,
+        st.tracking_failures,
+        held.keyframes,
+        held.keyframe_bytes / 2**20,
+        st.dropped_frames + a.colour_dropped + a.frames_rejected,
+        st.errors,
+    )
+
+
 def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -> tuple[list[Sample], str]:
     """Publish ``count`` frames into an in-process slam_node, sampling it every ``every`` frames.
 
@@ -94,26 +116,11 @@ def soak(scene: Path, count: int, rate_hz: float, every: int, iterations: int) -
         start = time.monotonic()
 
         def sample(published: int) -> None:
-            st, slam, a = tracking.pipeline.stats, tracking.pipeline.slam, tracking.assembler
-            drops = st.dropped_frames + a.colour_dropped + a.frames_rejected  # as /diagnostics counts them
-            held = footprint(slam)
-            samples.append(
-                Sample(
-                    published,
-                    time.monotonic() - start,
-                    rss_mb(),
-                    held.gaussians,
-                    st.tracked,
-                    st.tracking_failures,
-                    held.keyframes,
-                    held.keyframe_bytes / 2**20,
-                    drops,
-                    st.errors,
-                )
-            )
+            samples.append(_sample(tracking, published, time.monotonic() - start))
+            s = samples[-1]
             print(
-                f"{published:6d} frames  {samples[-1].rss_mb:7.1f} MB  {slam.num_gaussians:6d} G  "
-                f"{st.tracked:5d} tracked ({st.tracking_failures} failed)  {len(slam.keyframes):4d} keyframes",
+                f"{published:6d} frames  {s.rss_mb:7.1f} MB  {s.gaussians:6d} G  "
+                f"{s.tracked:5d} tracked ({s.failed} failed)  {s.keyframes:4d} keyframes",
                 flush=True,
             )
 
