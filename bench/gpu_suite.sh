@@ -98,8 +98,7 @@ run_ros() {  # slam_node in-process on CUDA for a few frames (the ROS wheels tra
   step ros_tests 400 $PY -m pytest -q -rs test/devices/test_cuda.py -k slam_node
 }
 
-run_suite() {
-  local device=$1 scale=$2 room_frames=$3 tum_frames=$4
+begin_suite() {  # begin_suite DEVICE: $OUT, the environment, the machine in summary.txt, the wheels on CUDA
   : "${OUT:=$PWD/gpu_out}"
   mkdir -p "$OUT"
   export SGS_SLAM_BENCH_OUT=$OUT/BENCHMARKS-gpu.md TORCH_EXTENSIONS_DIR=${TORCH_EXTENSIONS_DIR:-/tmp/torch_ext}
@@ -107,7 +106,12 @@ run_suite() {
   : > "$OUT/summary.txt"
   { nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo "no GPU";
     $PY -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"; } | tee -a "$OUT/summary.txt"
-  [ "$device" = cuda ] && install_wheels .whl
+  if [ "$1" = cuda ]; then install_wheels .whl; fi
+}
+
+run_suite() {
+  local device=$1 scale=$2 room_frames=$3 tum_frames=$4
+  begin_suite "$device"
   local build_pid=""
   if [ "$device" = cuda ]; then  # gsplat compiles (1-2 min) while the scene is generated
     ($PY -c "from gsplat.cuda._backend import _C" > "$OUT/gsplat_build.log" 2>&1; echo "gsplat build exit $?" >> "$OUT/gsplat_build.log") &
@@ -145,14 +149,7 @@ run_suite() {
 
 run_longrun() {  # run_longrun DEVICE WIDTH HEIGHT FRAMES LOOP_FRAMES ROOM_FRAMES
   local device=$1 w=$2 h=$3 frames=$4 loop=$5 room_frames=$6
-  : "${OUT:=$PWD/gpu_out}"
-  mkdir -p "$OUT"
-  export SGS_SLAM_BENCH_OUT=$OUT/BENCHMARKS-gpu.md TORCH_EXTENSIONS_DIR=${TORCH_EXTENSIONS_DIR:-/tmp/torch_ext}
-  export MAX_JOBS=${MAX_JOBS:-16} PYTHONPATH=$PWD XDG_CACHE_HOME=/tmp/sgs_cache
-  : > "$OUT/summary.txt"
-  { nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo "no GPU";
-    $PY -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available())"; } | tee -a "$OUT/summary.txt"
-  [ "$device" = cuda ] && install_wheels .whl
+  begin_suite "$device"
   local build_pid=""
   if [ "$device" = cuda ]; then  # gsplat compiles while the room renders; a run importing it earlier fails
     ($PY -c "from gsplat.cuda._backend import _C" > "$OUT/gsplat_build.log" 2>&1; echo "gsplat build exit $?" >> "$OUT/gsplat_build.log") &
