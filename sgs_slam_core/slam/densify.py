@@ -117,24 +117,10 @@ def gaussians_from_pixels(
     )
 
 
-def _cell_index(points: Tensor, cell_m: float) -> Tensor:  # [..., 3] -> [..., 3] int64
-    return torch.floor(points / cell_m).long()
-
-
-def _index_keys(ijk: Tensor) -> Tensor:  # [..., 3] int64 -> [...] int64
-    """One integer per cell index (21 bits per axis: +-1 km at 1 mm)."""
-    ijk = ijk & 0x1FFFFF
-    return (ijk[..., 0] << 42) | (ijk[..., 1] << 21) | ijk[..., 2]
-
-
 def _cell_keys(points: Tensor, cell_m: float) -> Tensor:  # [M, 3] -> [M] int64
-    """One integer per cubic cell of ``cell_m`` metres."""
-    return _index_keys(_cell_index(points, cell_m))
-
-
-def _cell_levels(radii: Tensor, factor: float) -> Tensor:  # [M] -> [M] int64
-    """Cells of ``factor`` x radius, rounded up to 1 mm x a power of two: the power."""
-    return torch.ceil(torch.log2((factor * radii / _CELL_BASE_M).clamp_min(1.0))).long()
+    """One integer per cubic cell of ``cell_m`` metres (21 bits per axis: +-1 km at 1 mm)."""
+    ijk = torch.floor(points / cell_m).long() & 0x1FFFFF
+    return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
 
 
 def spaced(
@@ -148,7 +134,7 @@ def spaced(
     A candidate's cell is ``spacing`` x its radius, rounded up to 1 mm x a power of two, so the
     map keeps about one Gaussian per ``spacing`` footprints wherever it already has one, at any depth.
     """
-    level = _cell_levels(radii, spacing)
+    level = torch.ceil(torch.log2((spacing * radii / _CELL_BASE_M).clamp_min(1.0))).long()
     keep = torch.zeros(points.shape[0], dtype=torch.bool, device=points.device)
     means = existing.means.detach() if existing is not None and len(existing) else None
     for lv in torch.unique(level).tolist():
