@@ -23,6 +23,7 @@ __all__ = ["SemanticCodec", "SemanticMode", "SemanticSettings"]
 
 SemanticMode = Literal["color", "onehot"]
 _DECODE_ELEMENTS = 1 << 24  # float32 distances per decoding chunk, whatever the number of classes
+_PALETTE_IDS = 1 << 16  # ids below this encode by a lookup in a cached palette (uint16 labels all do)
 
 
 @dataclass(frozen=True)
@@ -50,6 +51,7 @@ class SemanticCodec:
     def __init__(self, settings: SemanticSettings, table: LabelTable) -> None:
         self.settings = settings
         self.table = table
+        self._palettes: dict[torch.device, Tensor] = {}  # device -> [n, 3] colours of ids 0 .. n-1
 
     @property
     def mode(self) -> SemanticMode:
@@ -79,8 +81,26 @@ class SemanticCodec:
             if labels.numel() and int(labels.max()) >= k:
                 raise FrameError(f"class id {int(labels.max())} >= semantic.num_classes={k}; raise num_classes")
             return torch.nn.functional.one_hot(labels, k).to(torch.float32)
+        if labels.numel() == 0:
+            return labels.new_zeros((*labels.shape, 3), dtype=torch.float32)
+        lo, hi = (int(v) for v in torch.aminmax(labels))
+        if lo < 0 or hi >= _PALETTE_IDS:
+            return self.encode_by_unique(labels)
+        return self._palette(hi + 1, labels.device)[labels]
+
+    def encode_by_unique(self, labels: Tensor) -> Tensor:  # [...] int64 -> [..., 3] float32
+        """Colour-mode ``encode`` through the ids present (a sort): the reference, and the path for any id."""
         ids, inverse = torch.unique(labels, return_inverse=True)
         return self.class_colors(ids.tolist(), labels.device)[inverse]
+
+    def _palette(self, count: int, device: torch.device) -> Tensor:  # [n >= count, 3]
+        """The colours of ids 0 .. n-1 on ``device``, built once and grown to the next power of two."""
+        palette = self._palettes.get(device)
+        if palette is None or palette.shape[0] < count:
+            n = min(1 << (count - 1).bit_length(), _PALETTE_IDS)
+            palette = self.class_colors(range(n), device)
+            self._palettes[device] = palette
+        return palette
 
     def decode(self, semantic: Tensor, candidates: Sequence[int] | None = None) -> Tensor:  # [..., S] -> [...]
         """Class ids: nearest candidate colour (colour mode) or argmax over candidates (one-hot).

@@ -10,7 +10,7 @@ import numpy as np
 from sgs_slam_core.config.sections import KeyframeSettings
 from sgs_slam_core.frame import CompactFrame
 
-__all__ = ["Window", "is_keyframe", "label_miou", "overlap_scores", "select_window"]
+__all__ = ["Window", "is_keyframe", "label_miou", "label_miou_per_class", "overlap_scores", "select_window"]
 
 
 def is_keyframe(index: int, every: int, last: int | None = None) -> bool:
@@ -48,8 +48,36 @@ def overlap_scores(
     return scores
 
 
+_CONFUSION_CELLS = 1 << 20  # label ids below 1024: the confusion matrix fits in 8 MB
+
+
 def label_miou(a: np.ndarray, b: np.ndarray) -> float:
-    """Pixel-wise mIoU of two label images over the classes present in either (0 ignored)."""
+    """Pixel-wise mIoU of two label images over the classes present in either (0 ignored).
+
+    One pass over the images into a confusion matrix of the ids, where ``label_miou_per_class``
+    makes three per class (it takes the ids that do not fit a matrix).
+    """
+    if a.shape != b.shape:
+        raise ValueError(f"label images differ in size: {a.shape} vs {b.shape}")
+    if a.size == 0:
+        return 0.0
+    lo = min(int(a.min()), int(b.min()))
+    top = max(int(a.max()), int(b.max())) + 1
+    if lo < 0 or top * top > _CONFUSION_CELLS:
+        return label_miou_per_class(a, b)
+    codes = a.ravel().astype(np.int64) * top + b.ravel()
+    confusion = np.bincount(codes, minlength=top * top).reshape(top, top)  # [class in a, class in b]
+    inter = np.diag(confusion)
+    union = confusion.sum(axis=1) + confusion.sum(axis=0) - inter
+    present = union > 0
+    present[0] = False
+    if not present.any():
+        return 0.0
+    return float(np.mean(inter[present] / union[present]))
+
+
+def label_miou_per_class(a: np.ndarray, b: np.ndarray) -> float:
+    """``label_miou`` with one pass per class: the reference, and the path for any ids."""
     if a.shape != b.shape:
         raise ValueError(f"label images differ in size: {a.shape} vs {b.shape}")
     classes = np.union1d(np.unique(a), np.unique(b))

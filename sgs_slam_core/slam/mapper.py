@@ -19,13 +19,37 @@ from sgs_slam_core.slam.optimizer import GaussianOptimizer
 __all__ = ["MapResult", "MapStats", "WindowFrame", "map_window", "prune_mask"]
 
 
-@dataclass
 class WindowFrame:
-    """A frame of the mapping window: data, estimated pose and loss weight U(t)."""
+    """A frame of the mapping window: its data (or how to make it), estimated pose and loss weight U(t).
 
-    data: FrameTensors
-    w2c: torch.Tensor  # [4, 4] on the map's device
-    weight: float
+    A stored keyframe is decoded on the device each time a mapping step draws it (``deferred``) and
+    let go after the step: a window holds up to two dozen keyframes, each ~11 MB decoded at 640x480,
+    and a decoding is cheap beside the step that renders the frame.
+    """
+
+    def __init__(self, data: FrameTensors, w2c: torch.Tensor, weight: float) -> None:  # w2c [4, 4] on the map's device
+        self._data: FrameTensors | None = data
+        self._load: Callable[[], FrameTensors] | None = None
+        self.has_semantic = data.semantic is not None
+        self.w2c = w2c
+        self.weight = weight
+
+    @classmethod
+    def deferred(
+        cls, load: Callable[[], FrameTensors], has_semantic: bool, w2c: torch.Tensor, weight: float
+    ) -> WindowFrame:
+        """A frame whose data ``load`` makes at each use; ``has_semantic`` says whether it carries semantics."""
+        frame = cls.__new__(cls)
+        frame._data, frame._load = None, load
+        frame.has_semantic, frame.w2c, frame.weight = has_semantic, w2c, weight
+        return frame
+
+    def load(self) -> FrameTensors:
+        """The frame on the device (decoded now if it is deferred)."""
+        if self._data is not None:
+            return self._data
+        assert self._load is not None
+        return self._load()
 
 
 @dataclass(frozen=True)
@@ -77,21 +101,22 @@ def map_window(
     t0 = time.perf_counter()
     opt = GaussianOptimizer(gaussians, s, frozen_labels)
     direct = kernels.direct_mapping(gaussians.isotropic)
-    window_semantic = use_semantics and any(wf.data.semantic is not None for wf in window)
+    window_semantic = use_semantics and any(wf.has_semantic for wf in window)
     pruned, last, done = 0, float("nan"), 0
     prune_at = set(s.prune_iterations)
     for it in range(s.iterations):
         if between_iterations is not None and not between_iterations():
             break
         wf = window[-1] if it < s.current_frame_steps else window[int(rng.integers(len(window)))]
-        semantic = use_semantics and wf.data.semantic is not None
+        semantic = use_semantics and wf.has_semantic
+        data = wf.load()
         if direct:  # the same kernels without the autograd graph
-            loss = kernels.mapping_step_grads(opt.params, wf.data, wf.w2c, s, semantic, wf.weight, window_semantic)
+            loss = kernels.mapping_step_grads(opt.params, data, wf.w2c, s, semantic, wf.weight, window_semantic)
         else:
             with stage("map.render"):
-                out = kernels.render(opt.gaussians(), wf.data.intrinsics, wf.w2c, with_semantics=semantic)
+                out = kernels.render(opt.gaussians(), data.intrinsics, wf.w2c, with_semantics=semantic)
             with stage("map.loss"):
-                loss = kernels.mapping_loss(out, wf.data, s, semantic, wf.weight)
+                loss = kernels.mapping_loss(out, data, s, semantic, wf.weight)
             with stage("map.backward"):
                 loss.backward()
         with stage("map.step"):

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import torch
 
 from sgs_slam_core.config.sections import KeyframeSettings
+from sgs_slam_core.frame import CompactFrame
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.semantics import SemanticCodec
@@ -51,15 +54,26 @@ def upload_window(
     codec: SemanticCodec,
     edits: EditLocks,
 ) -> list[WindowFrame]:
-    """The window's keyframes on ``data``'s device with their poses and weights, the frame itself last."""
+    """The window's keyframes with their poses and weights, the frame itself last.
+
+    Keyframes are decoded on ``data``'s device whenever a mapping step draws them, with the edit
+    locks of that moment.
+    """
     device = data.depth.device
     frames = []
     for store_index, weight in zip(window.keyframes, window.weights[:-1], strict=True):
         kf = store[store_index]
-        with stage("upload"):
-            kf_data = FrameTensors.from_compact(kf, codec, device)
-            kf_data = kf_data.with_ignore(edits.ignore_mask(kf_data.labels))
-        frames.append(WindowFrame(kf_data, torch.as_tensor(kf.w2c, dtype=torch.float32, device=device), weight))
+        w2c = torch.as_tensor(kf.w2c, dtype=torch.float32, device=device)
+        frames.append(
+            WindowFrame.deferred(partial(_decoded, kf, codec, edits, device), kf.labels is not None, w2c, weight)
+        )
     w2c_now = torch.as_tensor(np.linalg.inv(c2w), dtype=torch.float32, device=device)
     frames.append(WindowFrame(data, w2c_now, window.weights[-1]))
     return frames
+
+
+def _decoded(kf: CompactFrame, codec: SemanticCodec, edits: EditLocks, device: torch.device) -> FrameTensors:
+    """A stored keyframe on ``device``, its locked pixels ignored."""
+    with stage("upload"):
+        data = FrameTensors.from_compact(kf, codec, device)
+        return data.with_ignore(edits.ignore_mask(data.labels))

@@ -50,6 +50,17 @@ def test_codec_round_trip(mode):
     assert torch.equal(codec.decode(noisy), labels)
 
 
+def test_color_encoding_by_palette_matches_the_unique_reference():
+    codec = SemanticCodec(SemanticSettings(), LabelTable.nyu40())
+    gen = torch.Generator().manual_seed(0)
+    for top in (1, 41, 300, 70_000):  # the palette grows; ids past 65535 take the reference path
+        labels = torch.randint(0, top, (37, 53), generator=gen)
+        assert torch.equal(codec.encode(labels), codec.encode_by_unique(labels))
+    with pytest.raises(LabelError, match="class ids"):
+        codec.encode(torch.tensor([[-1, 3], [2, 3]]))
+    assert codec.encode(torch.zeros((0, 4), dtype=torch.int64)).shape == (0, 4, 3)
+
+
 def test_codec_candidates_and_errors():
     codec = SemanticCodec(SemanticSettings(mode="onehot", num_classes=4), LabelTable.from_ids(range(4)))
     sem = torch.tensor([[0.1, 0.5, 0.3, 0.1]])

@@ -14,11 +14,21 @@ from sgs_slam_core.geometry import Intrinsics, se3_exp
 from sgs_slam_core.kernels import build_kernels
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.render import RenderSettings
-from sgs_slam_core.semantics import SemanticCodec
+from sgs_slam_core.semantics import SemanticCodec, SemanticSettings
+from sgs_slam_core.slam.edits import EditLocks
 from sgs_slam_core.slam.guard import TrackingGuard
-from sgs_slam_core.slam.keyframes import is_keyframe, label_miou, overlap_scores, select_window
+from sgs_slam_core.slam.keyframe_store import KeyframeStore
+from sgs_slam_core.slam.keyframes import (
+    Window,
+    is_keyframe,
+    label_miou,
+    label_miou_per_class,
+    overlap_scores,
+    select_window,
+)
 from sgs_slam_core.slam.optimizer import GaussianOptimizer
 from sgs_slam_core.slam.pose import PoseParameters, predict_constant_velocity
+from sgs_slam_core.slam.window import upload_window
 
 from ..render.scenes import random_scene
 
@@ -106,6 +116,18 @@ def test_overlap_scores_and_label_miou():
     assert label_miou(a, np.array([[1, 2, 2], [0, 2, 2]])) == pytest.approx((1 / 2 + 3 / 4) / 2)
 
 
+@pytest.mark.parametrize("top", [2, 12, 1023, 5000])
+def test_label_miou_confusion_matches_the_per_class_reference(top):
+    rng = np.random.default_rng(top)
+    for dtype in (np.uint16, np.int32):
+        a = rng.integers(0, top, (48, 64)).astype(dtype)
+        b = np.where(rng.random((48, 64)) < 0.7, a, rng.integers(0, top, (48, 64))).astype(dtype)
+        assert label_miou(a, b) == label_miou_per_class(a, b)
+    assert label_miou(np.zeros((4, 4), np.uint16), np.zeros((4, 4), np.uint16)) == 0.0
+    with pytest.raises(ValueError, match="differ in size"):
+        label_miou(np.zeros((4, 4)), np.zeros((4, 5)))
+
+
 def test_select_window_filters_in_order():
     labels = np.zeros((48, 64), np.int32)
     labels[:, 32:] = 3
@@ -177,3 +199,24 @@ def test_the_first_mapping_steps_render_the_newest_window_frame(monkeypatch):
     mapper.map_window(gm, window, s, kernels, 1.0, False, np.random.default_rng(0))
     assert seen[:5] == [0.5] * 5 and len(seen) == 12
     assert {0.0, 0.25} <= set(seen[5:])  # then uniformly over the window
+
+
+def test_window_keyframes_are_decoded_when_a_mapping_step_draws_them(monkeypatch):
+    store = KeyframeStore(KeyframeSettings(max_keyframes=None))
+    labels = np.ones((48, 64), np.uint16)
+    for i in range(3):
+        store.add(keyframe(i, np.eye(4), labels if i else None))
+    decoded = []
+    real = FrameTensors.from_compact
+    monkeypatch.setattr(
+        FrameTensors,
+        "from_compact",
+        staticmethod(lambda kf, codec, dev: decoded.append(kf.index) or real(kf, codec, dev)),
+    )
+    codec = SemanticCodec(SemanticSettings(), LabelTable.nyu40())
+    rgb, depth = np.zeros((48, 64, 3), np.uint8), np.ones((48, 64), np.float32)
+    current = FrameTensors.from_arrays(9, K, rgb, depth, labels, codec, torch.device("cpu"))
+    frames = upload_window(store, Window((0, 2), (1.0, 1.0, 1.0), 2, 2, 2), current, np.eye(4), codec, EditLocks())
+    assert decoded == [] and [f.has_semantic for f in frames] == [False, True, True]
+    assert frames[1].load().index == 2 and frames[1].load().semantic is not None and decoded == [2, 2]
+    assert frames[2].load() is current and decoded == [2, 2]  # each draw decodes; the current frame is held
