@@ -45,7 +45,7 @@ class MotionModel:
         prev2 = poses[-2] if len(poses) > 1 and self.settings.constant_velocity else None
         c2w = predict_constant_velocity(prev, prev2, self._motion_fraction(stamp_ns))
         if self._icp is not None and self._intervals_since_last(stamp_ns) >= self.settings.icp_min_gap:
-            c2w, _ = self._icp.refine(torch.where(data.valid, data.depth, 0.0), data.intrinsics, c2w)
+            c2w, _ = self._icp.refine(_measured_depth(data), data.intrinsics, c2w)
         return c2w
 
     def fallback(self, data: FrameTensors) -> np.ndarray | None:  # c2w [4, 4]
@@ -58,7 +58,7 @@ class MotionModel:
             return None
         c2w = self._history[-1][1].copy()
         if self._icp is not None:
-            c2w, _ = self._icp.refine(torch.where(data.valid, data.depth, 0.0), data.intrinsics, c2w)
+            c2w, _ = self._icp.refine(_measured_depth(data), data.intrinsics, c2w)
         return c2w
 
     def observe(self, stamp_ns: int, c2w: np.ndarray, data: FrameTensors | None) -> None:
@@ -67,7 +67,7 @@ class MotionModel:
             gap = stamp_ns - self._history[-1][0]
             self._min_interval_ns = gap if self._min_interval_ns is None else min(gap, self._min_interval_ns)
         if self._icp is not None and data is not None:
-            self._icp.remember(torch.where(data.valid, data.depth, 0.0), data.intrinsics, c2w)
+            self._icp.remember(_measured_depth(data), data.intrinsics, c2w)
         self._history.append((stamp_ns, c2w))
 
     @property
@@ -95,3 +95,8 @@ class MotionModel:
             return 1.0
         fraction = gap / last_gap
         return 1.0 if 2 / 3 < fraction < 1.5 else min(fraction, 4.0)
+
+
+def _measured_depth(data: FrameTensors) -> torch.Tensor:  # [H, W] m
+    """The frame's depth with ignored (edit-locked) pixels set to 0, as the ICP reads it."""
+    return torch.where(data.valid, data.depth, 0.0)
