@@ -424,6 +424,14 @@ class KeyframeSettings:
             keyframe covers best leaves (``slam.keyframe_store``), so revisits do not add memory.
         max_megabytes: cap on the host memory of the keyframes' images (MiB; None = no cap).
         keep_recent: the newest this many keyframes are never evicted (the window's freshest views).
+        replace_radius_m: a new keyframe takes the place of a held one at least ``replace_min_age``
+            frames older whose camera centre lies within this distance (m) and ``replace_angle_deg``
+            of its optical axis, at once rather than when the store is full: a revisited place keeps
+            one view, so the store stops growing from the first revisit (None = only the caps evict).
+            The same test as ``densify.revisit_radius_m``: no keyframe of TUM fr3/teddy or the
+            room's orbit is replaced, while a looping camera's are.
+        replace_angle_deg: see ``replace_radius_m``.
+        replace_min_age: see ``replace_radius_m`` (frames): the last keyframes always lie near.
     """
 
     every: int = 5
@@ -439,10 +447,19 @@ class KeyframeSettings:
     max_keyframes: int | None = 64
     max_megabytes: float | None = 512.0
     keep_recent: int = 4
+    replace_radius_m: float | None = 0.2
+    replace_angle_deg: float = 10.0
+    replace_min_age: int = 30
 
     def __post_init__(self) -> None:
-        _positive("keyframes", every=self.every, overlap_samples=self.overlap_samples)
+        _positive(
+            "keyframes", every=self.every, overlap_samples=self.overlap_samples, replace_min_age=self.replace_min_age
+        )
         _non_negative("keyframes", keep_recent=self.keep_recent)
+        if self.replace_radius_m is not None and not self.replace_radius_m > 0:
+            raise ConfigError(f"keyframes.replace_radius_m must be > 0 or null, got {self.replace_radius_m}")
+        if not 0 < self.replace_angle_deg <= 180:
+            raise ConfigError(f"keyframes.replace_angle_deg must be in (0, 180], got {self.replace_angle_deg}")
         if self.max_keyframes is not None and self.max_keyframes < max(self.keep_recent, 2):
             raise ConfigError(f"keyframes.max_keyframes must be >= max(keep_recent, 2) or null: {self.max_keyframes}")
         if self.max_megabytes is not None and not self.max_megabytes > 0:

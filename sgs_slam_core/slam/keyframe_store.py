@@ -3,9 +3,10 @@
 Every kept keyframe carries a small sample of its back-projected pixels (world points) and a
 thumbnail of its labels. When a keyframe arrives, each older one's points are projected into it
 (the window selection's geometric overlap) and their thumbnails compared (the semantic mIoU of the
-paper's filter). When the store is over its cap, the keyframe whose view a newer keyframe covers
-best leaves: revisiting a place replaces its old views instead of piling up new ones, while views
-nothing newer sees (the only look at a corner) stay.
+paper's filter). A keyframe that re-takes an older keyframe's view (camera near it, long after)
+takes its place at once; when the store is still over its cap, the keyframe whose view a newer
+keyframe covers best leaves. Revisiting a place replaces its old views instead of piling up new
+ones, while views nothing newer sees (the only look at a corner) stay.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ class StoreStats:
     held: int  # keyframes with images
     nbytes: int  # host bytes of their images
     added: int  # keyframes ever added
-    evicted: int  # keyframes dropped by the cap
+    evicted: int  # keyframes dropped: re-taken views and those the caps pushed out
 
 
 @dataclass
@@ -87,12 +88,14 @@ class _Views:
 
     def near(self, c2w: np.ndarray, up_to_index: int, radius_m: float, angle_deg: float) -> bool:
         """Whether a view with frame index <= ``up_to_index`` lies within ``radius_m`` and ``angle_deg`` of ``c2w``."""
-        old = self._index[: self._n] <= up_to_index
-        if not old.any():
-            return False
-        close = np.linalg.norm(self._centre[: self._n][old] - c2w[:3, 3], axis=1) <= radius_m
-        aligned = self._axis[: self._n][old] @ c2w[:3, 2] >= np.cos(np.radians(angle_deg))
-        return bool((close & aligned).any())
+        return bool(self.near_indices(c2w, up_to_index, radius_m, angle_deg).size)
+
+    def near_indices(self, c2w: np.ndarray, up_to_index: int, radius_m: float, angle_deg: float) -> np.ndarray:
+        """Frame indices [K] of the views ``near`` counts."""
+        n = self._n
+        close = np.linalg.norm(self._centre[:n] - c2w[:3, 3], axis=1) <= radius_m
+        aligned = self._axis[:n] @ c2w[:3, 2] >= np.cos(np.radians(angle_deg))
+        return self._index[:n][(self._index[:n] <= up_to_index) & close & aligned]
 
 
 class KeyframeStore(Sequence[CompactFrame]):
@@ -158,7 +161,8 @@ class KeyframeStore(Sequence[CompactFrame]):
         self._poses.append((kf.index, kf.w2c.copy()))
         self._views.add(kf.index, kf.w2c)
         self._nbytes += kf.nbytes
-        gone = []
+        retaken = self._retaken(entry)
+        gone = [] if retaken is None else [self._remove(retaken)]
         while self._over_cap():
             victim = self._victim()
             if victim is None:
@@ -181,6 +185,27 @@ class KeyframeStore(Sequence[CompactFrame]):
         too_many = s.max_keyframes is not None and len(self._entries) > s.max_keyframes
         too_big = s.max_megabytes is not None and self._nbytes > s.max_megabytes * 2**20
         return too_many or too_big
+
+    def _retaken(self, new: _Entry) -> int | None:
+        """Position of the held keyframe whose view ``new`` re-takes (the one it covers best), or None.
+
+        Re-taken: taken at least ``replace_min_age`` frames before ``new`` within ``replace_radius_m``
+        and ``replace_angle_deg`` of it, seen by ``new``, and not among the newest ``keep_recent``.
+        """
+        s = self.settings
+        if s.replace_radius_m is None:
+            return None
+        c2w = np.linalg.inv(new.frame.w2c)
+        near = set(
+            self._views.near_indices(
+                c2w, new.frame.index - s.replace_min_age, s.replace_radius_m, s.replace_angle_deg
+            ).tolist()
+        )
+        evictable = self._entries[: len(self._entries) - s.keep_recent]
+        scores = [e.covered.get(new.frame.index, 0.0) if e.frame.index in near else 0.0 for e in evictable]
+        if not scores or max(scores) <= 0:
+            return None
+        return int(np.argmax(scores))
 
     def _victim(self) -> int | None:
         """Position of the keyframe a newer one covers best (the oldest on ties); the newest are kept."""

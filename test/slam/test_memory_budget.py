@@ -59,6 +59,37 @@ def test_a_revisited_view_leaves_before_a_view_seen_once():
     assert np.allclose(np.linalg.inv(store.poses()[2][1]), looking(2, 180).w2c)
 
 
+def test_a_view_retaken_long_after_replaces_the_old_one_before_the_store_is_full():
+    """A camera turning back and forth: from the first revisit on, the store holds one view per place."""
+    store = KeyframeStore(KeyframeSettings(max_keyframes=64, keep_recent=1, replace_min_age=30))
+    sweep = [0, 20, 40, 60, 80, 100, 80, 60, 40, 20] * 3  # yaw (deg) of keyframes 10 frames apart
+    held = []
+    for i, yaw in enumerate(sweep):
+        gone = store.add(looking(10 * i, yaw))
+        held.append(len(store))
+        if i == 9:  # back at 20 degrees, 80 frames after the first look: that look leaves
+            assert gone == [10]
+    # the turns re-take their view within replace_min_age, so each turn holds two; no more after that
+    assert held[:8] == [1, 2, 3, 4, 5, 6, 7, 7] and held[11:] == [8] * (len(sweep) - 11)
+    # w2c's rotation is c2w's transposed
+    yaws = {round(np.degrees(np.arctan2(-kf.w2c[0, 2], kf.w2c[0, 0]))) for kf in store}
+    assert yaws == {0, 20, 40, 60, 80, 100}  # every place still seen
+    assert store.stats().evicted == len(sweep) - 8 and len(store.poses()) == len(sweep)
+
+
+def test_replacing_needs_the_view_near_and_old():
+    settings = KeyframeSettings(max_keyframes=64, keep_recent=1, replace_min_age=30, replace_angle_deg=10.0)
+    store = KeyframeStore(settings)
+    store.add(looking(0, 0))
+    assert store.add(looking(20, 0)) == []  # too recent
+    assert store.add(looking(40, 15)) == []  # turned too far
+    assert store.add(looking(60, 5)) == [0]  # the oldest of the near, old views it covers best
+    off = KeyframeStore(dataclasses.replace(settings, replace_radius_m=None))
+    for i in range(5):
+        assert off.add(looking(40 * i, 0)) == []
+    assert len(off) == 5
+
+
 def test_other_classes_make_a_view_less_redundant():
     """Two equally overlapping old views: the one whose labels match the new view leaves."""
     store = KeyframeStore(KeyframeSettings(max_keyframes=3, keep_recent=1))
@@ -83,7 +114,15 @@ def test_the_byte_cap_holds_and_the_newest_stay():
 
 @pytest.mark.parametrize(
     "change",
-    [{"max_keyframes": 1}, {"max_keyframes": 3, "keep_recent": 4}, {"max_megabytes": 0.0}, {"keep_recent": -1}],
+    [
+        {"max_keyframes": 1},
+        {"max_keyframes": 3, "keep_recent": 4},
+        {"max_megabytes": 0.0},
+        {"keep_recent": -1},
+        {"replace_radius_m": 0.0},
+        {"replace_angle_deg": 0.0},
+        {"replace_min_age": 0},
+    ],
 )
 def test_caps_are_validated(change):
     with pytest.raises(ConfigError):
