@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The GPU suite in one device call, at 640x480: GPU tests, both trackers side by side (TUM fr3/teddy
 # subset, synthetic room), the SLAM live at the camera's rate and in lockstep, the gsplat renderer
-# benchmark. Results go under $OUT.
+# benchmark, a profile of two Gauss-Newton frames. Results go under $OUT.
 #
 #   bash bench/gpu_suite.sh prepare [FRAMES]   # here: wheels into .whl/, a TUM subset into .gpu_data/
 #   bash bench/gpu_suite.sh run                # there (the device tool), carrying .whl and .gpu_data
@@ -140,6 +140,10 @@ run_suite() {
     --downscale 1 --trackers adam gauss_newton --skip-runs
   if [ "$device" = cuda ]; then
     step render 60 $PY bench/bench_render.py --backend gsplat
+  fi
+  if [ -d "$tum" ]; then  # where a Gauss-Newton frame's time goes: two frames under torch.profiler, mapping cut to 10 steps
+    step profile_tum 100 $PY bench/bench_slam.py "$tum" --preset tum "${sets[@]}" --max-frames 12 --downscale "$scale" \
+      --set tracking.method=gauss_newton --set mapping.iterations=10 --profile 2 --profile-warmup 9 --out "$OUT/run_profile"
   fi
   for run in "$OUT"/run_*; do  # keep the small files; maps and renders stay behind
     [ -d "$run" ] && find "$run" -maxdepth 1 -type f \( -name '*.sgsmap' -o -name '*.ply' \) -delete
