@@ -59,11 +59,16 @@ class SlamConfig:
     }
 
     def for_live(self) -> SlamConfig:
-        """This config as live runs use it: ``live.tracking_method``, when set, replaces ``tracking.method``."""
-        method = self.live.tracking_method
-        if method is None or method == self.tracking.method:
-            return self
-        return replace(self, tracking=replace(self.tracking, method=method))
+        """This config as live runs use it: ``live.tracking_method`` / ``live.mapping_every`` replace their settings.
+
+        Either, when null, leaves ``tracking.method`` / ``mapping.every`` as they are.
+        """
+        config, method, every = self, self.live.tracking_method, self.live.mapping_every
+        if method is not None and method != config.tracking.method:
+            config = replace(config, tracking=replace(config.tracking, method=method))
+        if every is not None and every != config.mapping.every:
+            config = replace(config, mapping=replace(config.mapping, every=every))
+        return config
 
     def __post_init__(self) -> None:
         if self.seed < 0:

@@ -518,13 +518,20 @@ class LiveSettings:
         tracking_method: the tracker live runs use in place of ``tracking.method`` (null: that
             one). Gauss-Newton by default: it renders the map twice a frame where Adam renders it
             at every step, so it keeps up with a camera; lockstep runs keep ``tracking.method``.
+        mapping_every: live runs optimise the map on every n-th tracked frame in place of
+            ``mapping.every`` (null: that one); every frame is still densified, and mapping steps
+            fill the time between frames either way. Fewer mapping jobs leave the tracker more of
+            the machine: more frames tracked, fewer mapping steps.
     """
 
     map_turn_fraction: float = 0.01
     preempt_fraction: float = 1 / 3
     tracking_method: TrackerName | None = "gauss_newton"
+    mapping_every: int | None = None
 
     def __post_init__(self) -> None:
+        if self.mapping_every is not None and self.mapping_every < 1:
+            raise ConfigError(f"live.mapping_every must be >= 1 or null, got {self.mapping_every}")
         for name, value in (("map_turn_fraction", self.map_turn_fraction), ("preempt_fraction", self.preempt_fraction)):
             if not 0 <= value <= 1:
                 raise ConfigError(f"live.{name} must be in [0, 1], got {value}")

@@ -84,3 +84,12 @@ def test_live_runs_swap_in_the_live_tracker_and_lockstep_runs_keep_the_presets()
     assert load_config("tum", overrides=["live.tracking_method=adam"]).for_live().tracking.method == "adam"
     with pytest.raises(ConfigError, match=r"live\.tracking_method"):
         load_config("tum", overrides=["live.tracking_method=lbfgs"])
+
+
+def test_live_runs_may_map_fewer_frames_than_lockstep_runs():
+    config = load_config("synthetic", overrides=["live.mapping_every=5"])
+    assert config.mapping.every == 1 and config.for_live().mapping.every == 5
+    assert config.for_live().mapping.iterations == config.mapping.iterations
+    assert load_config("synthetic").for_live().mapping.every == 1  # null: mapping.every
+    with pytest.raises(ConfigError, match=r"live\.mapping_every"):
+        load_config("synthetic", overrides=["live.mapping_every=0"])
