@@ -270,12 +270,13 @@ def test_release_times_follow_the_stamps_or_the_rate():
 def test_realtime_replay_accounts_for_every_frame(tiny_scene):
     dataset = open_dataset(tiny_scene)
     slam = Slam(load_config("synthetic", overrides=list(FAST_SLAM)), dataset.label_table)
-    result = run_realtime(slam, dataset, hz=100.0)  # faster than 2 cores can track: frames are dropped
+    # 1 ms apart: faster than any machine tracks (at 100 Hz a fresh CI machine once tracked all 12)
+    result = run_realtime(slam, dataset, hz=1000.0)
     st = result.stats
     assert st.frames_in == len(dataset) == st.frames_tracked + st.frames_dropped
     assert 1 <= st.frames_tracked < len(dataset) and st.frames_mapped >= 1
     assert result.dataset_indices[0] == 0 and result.dataset_indices == sorted(result.dataset_indices)
-    assert st.realtime_hz == pytest.approx(100.0)
+    assert st.realtime_hz == pytest.approx(1000.0)
     assert all(np.isfinite(s.c2w).all() for s in result.steps)
 
 
