@@ -37,6 +37,16 @@ def _positive(section: str, **values: float) -> None:
             raise ConfigError(f"{section}.{name} must be > 0, got {value}")
 
 
+def _check_view_test(prefix: str, radius_m: float | None, angle_deg: float, min_age: int) -> None:
+    """The "a keyframe took this view long ago" test's settings: ``{prefix}_radius_m`` and the rest."""
+    if radius_m is not None and not radius_m > 0:
+        raise ConfigError(f"{prefix}_radius_m must be > 0 or null, got {radius_m}")
+    if not 0 < angle_deg <= 180:
+        raise ConfigError(f"{prefix}_angle_deg must be in (0, 180], got {angle_deg}")
+    if min_age < 1:
+        raise ConfigError(f"{prefix}_min_age must be >= 1, got {min_age}")
+
+
 def _non_negative(section: str, **values: float) -> None:
     for name, value in values.items():
         if value < 0:
@@ -385,12 +395,7 @@ class DensifySettings:
             raise ConfigError(f"densify.min_spacing must be > 0 or null, got {self.min_spacing}")
         if self.max_gaussians is not None and self.max_gaussians < 1:
             raise ConfigError(f"densify.max_gaussians must be >= 1 or null, got {self.max_gaussians}")
-        if self.revisit_radius_m is not None and not self.revisit_radius_m > 0:
-            raise ConfigError(f"densify.revisit_radius_m must be > 0 or null, got {self.revisit_radius_m}")
-        if not 0 < self.revisit_angle_deg <= 180:
-            raise ConfigError(f"densify.revisit_angle_deg must be in (0, 180], got {self.revisit_angle_deg}")
-        if self.revisit_min_age < 1:
-            raise ConfigError(f"densify.revisit_min_age must be >= 1, got {self.revisit_min_age}")
+        _check_view_test("densify.revisit", self.revisit_radius_m, self.revisit_angle_deg, self.revisit_min_age)
         if self.front_window < 1 or self.front_window % 2 == 0:
             raise ConfigError(f"densify.front_window must be odd and >= 1, got {self.front_window}")
         if self.max_width is not None and self.max_width < 8:
@@ -428,8 +433,7 @@ class KeyframeSettings:
             frames older whose camera centre lies within this distance (m) and ``replace_angle_deg``
             of its optical axis, at once rather than when the store is full: a revisited place keeps
             one view, so the store stops growing from the first revisit (None = only the caps evict).
-            The same test as ``densify.revisit_radius_m``: no keyframe of TUM fr3/teddy or the
-            room's orbit is replaced, while a looping camera's are.
+            The defaults are ``densify.revisit_*``'s: the same test of a revisit.
         replace_angle_deg: see ``replace_radius_m``.
         replace_min_age: see ``replace_radius_m`` (frames): the last keyframes always lie near.
     """
@@ -452,14 +456,9 @@ class KeyframeSettings:
     replace_min_age: int = 30
 
     def __post_init__(self) -> None:
-        _positive(
-            "keyframes", every=self.every, overlap_samples=self.overlap_samples, replace_min_age=self.replace_min_age
-        )
+        _positive("keyframes", every=self.every, overlap_samples=self.overlap_samples)
         _non_negative("keyframes", keep_recent=self.keep_recent)
-        if self.replace_radius_m is not None and not self.replace_radius_m > 0:
-            raise ConfigError(f"keyframes.replace_radius_m must be > 0 or null, got {self.replace_radius_m}")
-        if not 0 < self.replace_angle_deg <= 180:
-            raise ConfigError(f"keyframes.replace_angle_deg must be in (0, 180], got {self.replace_angle_deg}")
+        _check_view_test("keyframes.replace", self.replace_radius_m, self.replace_angle_deg, self.replace_min_age)
         if self.max_keyframes is not None and self.max_keyframes < max(self.keep_recent, 2):
             raise ConfigError(f"keyframes.max_keyframes must be >= max(keep_recent, 2) or null: {self.max_keyframes}")
         if self.max_megabytes is not None and not self.max_megabytes > 0:
