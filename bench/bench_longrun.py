@@ -39,6 +39,8 @@ from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.metrics import ate
+from sgs_slam_core.render.output import camera_covariances, to_camera
+from sgs_slam_core.render.projection import project_gaussians
 from sgs_slam_core.slam.footprint import footprint
 from sgs_slam_core.slam.system import Slam
 from sgs_slam_core.synthetic import SynthConfig
@@ -61,6 +63,11 @@ class Sample:
     s_per_frame: float  # mean Slam.process wall time over the frames since the last sample
     cpu_s_per_frame: float  # the same in CPU time of this process (all threads): steadier on a shared machine
     gpu_peak_mb: float  # highest CUDA memory allocated by torch so far (0 on the CPU)
+    track_s: float  # mean tracking wall time per frame since the last sample
+    map_s: float  # mean densification + mapping wall time per frame since the last sample
+    renders: float  # mean renderings per tracked frame since the last sample
+    intersections: int  # Gaussian x 16-pixel-tile pairs of the map seen from the run's first pose (render work)
+    scale_p90_mm: float  # 90th percentile of the Gaussians' largest scale (mm)
 
 
 @dataclass(frozen=True)
@@ -78,6 +85,9 @@ class LoopRow:
     cpu_s_per_frame: float
     gpu_peak_mb: float
     ate_cm: float
+    track_s: float
+    map_s: float
+    intersections: float
 
 
 def rss_mb() -> float:
@@ -93,6 +103,33 @@ def peak_rss_mb() -> float:
 def gpu_peak_mb(device: str) -> float:
     """Highest memory torch has allocated on ``device`` so far (MB; 0 off CUDA)."""
     return torch.cuda.max_memory_allocated(device) / 2**20 if device.startswith("cuda") else 0.0
+
+
+@torch.no_grad()
+def render_work(slam: Slam, c2w: np.ndarray, tile: int = 16) -> int:
+    """Gaussian x tile pairs when the map is rendered from ``c2w`` [4, 4]: the compositor's work, free of timing noise."""
+    g, k = slam.gaussians, slam.intrinsics
+    if k is None or not len(g):
+        return 0
+    w2c = torch.as_tensor(np.linalg.inv(c2w), dtype=g.means.dtype, device=g.means.device)
+    cam = to_camera(g, w2c, with_semantics=False)
+    proj = project_gaussians(
+        cam.means, cam.opacities, k, slam.config.render, scales=cam.scales if g.isotropic else None,
+        covars_cam=None if g.isotropic else camera_covariances(cam),
+    )
+    u, v, r = proj.means2d[:, 0], proj.means2d[:, 1], proj.radii
+    x0, x1 = ((u - r).clamp(0, k.width - 1) // tile), ((u + r).clamp(0, k.width - 1) // tile)
+    y0, y1 = ((v - r).clamp(0, k.height - 1) // tile), ((v + r).clamp(0, k.height - 1) // tile)
+    inside = (r > 0) & (u + r >= 0) & (u - r <= k.width - 1) & (v + r >= 0) & (v - r <= k.height - 1)
+    return int(((x1 - x0 + 1) * (y1 - y0 + 1))[inside].sum())
+
+
+def scale_p90_mm(slam: Slam) -> float:
+    """90th percentile of the Gaussians' largest scale (mm); 0 for an empty map."""
+    g = slam.gaussians
+    if not len(g):
+        return 0.0
+    return 1000 * float(torch.quantile(torch.exp(g.log_scales.detach()).amax(dim=1).float()[::7], 0.9))
 
 
 def order(loop_frames: int, count: int) -> list[int]:
@@ -114,13 +151,17 @@ def run(dataset: Dataset, config: SlamConfig, count: int, every: int) -> tuple[l
 
 
 def _loop(slam: Slam, dataset: Dataset, count: int, every: int, est: list, gt: list, samples: list[Sample]) -> None:
-    spent = cpu = 0.0
+    spent = cpu = tracking = mapping = renders = 0.0
     for i, pos in enumerate(order(len(dataset), count)):
         frame = replace(dataset[pos], stamp_ns=10**9 + i * 33_333_333)  # 30 Hz stamps, always increasing
         t0, c0 = time.perf_counter(), time.process_time()
         step = slam.process(frame)
         spent += time.perf_counter() - t0
         cpu += time.process_time() - c0
+        tracking += step.track.time_s
+        mapping += step.map.time_s
+        result = step.track.result
+        renders += 0 if result is None else (result.renders or result.iterations)
         gt.append(frame.gt_c2w)
         est.append(step.c2w)
         if (i + 1) % every == 0 or i + 1 == count:
@@ -140,14 +181,21 @@ def _loop(slam: Slam, dataset: Dataset, count: int, every: int, est: list, gt: l
                     spent / done,
                     cpu / done,
                     gpu_peak_mb(slam.config.device),
+                    tracking / done,
+                    mapping / done,
+                    renders / done,
+                    render_work(slam, est[0]),
+                    scale_p90_mm(slam),
                 )
             )
-            spent = cpu = 0.0
+            spent = cpu = tracking = mapping = renders = 0.0
             s = samples[-1]
             print(
                 f"{s.frames:6d} frames  {s.rss_mb:7.0f} MB (peak {s.peak_rss_mb:.0f})  {s.gaussians:8,d} G "
                 f"({s.gaussian_mb:.0f} MB)  {s.keyframes:4d} kf ({s.keyframe_mb:.0f} MB, {s.evicted} evicted)  "
-                f"{s.s_per_frame:.2f} s/frame ({s.cpu_s_per_frame:.2f} CPU s)"
+                f"{s.s_per_frame:.2f} s/frame ({s.cpu_s_per_frame:.2f} CPU s; track {s.track_s:.2f}, "
+                f"{s.renders:.1f} renders; map {s.map_s:.2f})  {s.intersections / 1e6:.2f} M tile pairs  "
+                f"p90 scale {s.scale_p90_mm:.1f} mm"
                 + (f"  GPU peak {s.gpu_peak_mb:.0f} MB" if s.gpu_peak_mb else ""),
                 flush=True,
             )
@@ -174,6 +222,9 @@ def per_loop(samples: list[Sample], est: np.ndarray, gt: np.ndarray, period: int
                 float(np.mean([s.cpu_s_per_frame for s in inside])),
                 max(s.gpu_peak_mb for s in inside),
                 100 * ate(est[lo:hi], gt[lo:hi]).rmse,
+                float(np.mean([s.track_s for s in inside])),
+                float(np.mean([s.map_s for s in inside])),
+                float(np.mean([s.intersections for s in inside])),
             )
         )
     return rows
@@ -216,9 +267,21 @@ def plot(samples: list[Sample], path: Path, title: str) -> None:
             [
                 Series("wall", np.array([s.s_per_frame for s in samples]), (120, 40, 160)),
                 Series("CPU (all threads)", np.array([s.cpu_s_per_frame for s in samples]), (0, 140, 220)),
+                Series("tracking", np.array([s.track_s for s in samples]), (200, 90, 0)),
+                Series("densify + mapping", np.array([s.map_s for s in samples]), (40, 140, 40)),
             ],
             "Slam.process",
             "s",
+            x_label="frames",
+            x_step=x,
+        ),
+        line_panel(
+            [
+                Series("tile pairs / 1e5", np.array([s.intersections / 1e5 for s in samples]), (120, 40, 160)),
+                Series("p90 Gaussian scale (mm)", np.array([s.scale_p90_mm for s in samples]), (0, 140, 220)),
+            ],
+            "render work from the first pose",
+            "count",
             x_label="frames",
             x_step=x,
         ),
@@ -242,6 +305,9 @@ def report(rows: list[LoopRow], samples: list[Sample], plot_path: Path, what: st
             "CPU s/frame",
             "GPU peak MB",
             "ATE cm",
+            "track s",
+            "map s",
+            "tile pairs M",
         ],
         [
             [
@@ -256,6 +322,9 @@ def report(rows: list[LoopRow], samples: list[Sample], plot_path: Path, what: st
                 f"{r.cpu_s_per_frame:.2f}",
                 f"{r.gpu_peak_mb:.0f}" if r.gpu_peak_mb else "-",
                 f"{r.ate_cm:.2f}",
+                f"{r.track_s:.2f}",
+                f"{r.map_s:.2f}",
+                f"{r.intersections / 1e6:.2f}",
             ]
             for r in rows
         ],
@@ -268,6 +337,9 @@ def report(rows: list[LoopRow], samples: list[Sample], plot_path: Path, what: st
             ("keyframe MB", "keyframe_mb"),
             ("wall time per frame", "s_per_frame"),
             ("CPU time per frame", "cpu_s_per_frame"),
+            ("tracking time", "track_s"),
+            ("mapping time", "map_s"),
+            ("tile pairs", "intersections"),
         )
     )
     return (
