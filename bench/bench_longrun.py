@@ -107,14 +107,18 @@ def gpu_peak_mb(device: str) -> float:
 
 @torch.no_grad()
 def render_work(slam: Slam, c2w: np.ndarray, tile: int = 16) -> int:
-    """Gaussian x tile pairs when the map is rendered from ``c2w`` [4, 4]: the compositor's work, free of timing noise."""
+    """Gaussian x tile pairs when the map is rendered from ``c2w`` [4, 4]: the compositor's work, without timing noise."""
     g, k = slam.gaussians, slam.intrinsics
     if k is None or not len(g):
         return 0
     w2c = torch.as_tensor(np.linalg.inv(c2w), dtype=g.means.dtype, device=g.means.device)
     cam = to_camera(g, w2c, with_semantics=False)
     proj = project_gaussians(
-        cam.means, cam.opacities, k, slam.config.render, scales=cam.scales if g.isotropic else None,
+        cam.means,
+        cam.opacities,
+        k,
+        slam.config.render,
+        scales=cam.scales if g.isotropic else None,
         covars_cam=None if g.isotropic else camera_covariances(cam),
     )
     u, v, r = proj.means2d[:, 0], proj.means2d[:, 1], proj.radii
@@ -195,8 +199,7 @@ def _loop(slam: Slam, dataset: Dataset, count: int, every: int, est: list, gt: l
                 f"({s.gaussian_mb:.0f} MB)  {s.keyframes:4d} kf ({s.keyframe_mb:.0f} MB, {s.evicted} evicted)  "
                 f"{s.s_per_frame:.2f} s/frame ({s.cpu_s_per_frame:.2f} CPU s; track {s.track_s:.2f}, "
                 f"{s.renders:.1f} renders; map {s.map_s:.2f})  {s.intersections / 1e6:.2f} M tile pairs  "
-                f"p90 scale {s.scale_p90_mm:.1f} mm"
-                + (f"  GPU peak {s.gpu_peak_mb:.0f} MB" if s.gpu_peak_mb else ""),
+                f"p90 scale {s.scale_p90_mm:.1f} mm" + (f"  GPU peak {s.gpu_peak_mb:.0f} MB" if s.gpu_peak_mb else ""),
                 flush=True,
             )
 

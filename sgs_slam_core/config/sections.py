@@ -288,6 +288,10 @@ class MappingSettings:
         prune_opacity: remove Gaussians below this opacity.
         prune_scale_ratio: remove Gaussians larger than this times the scene radius.
         scene_radius_depth_ratio: scene radius = max first-frame depth / this.
+        max_scale_px: after each step, Gaussians in front of the step's camera are shrunk to at
+            most this many pixels of standard deviation at their depth there (None = unbounded, as
+            the reference): over thousands of steps on revisited views the splats otherwise keep
+            growing, and every render with them.
         refresh_labels: after mapping, set every Gaussian's class id from its semantic features.
     """
 
@@ -308,6 +312,7 @@ class MappingSettings:
     prune_opacity: float = 0.005
     prune_scale_ratio: float = 0.1
     scene_radius_depth_ratio: float = 3.0
+    max_scale_px: float | None = None
     refresh_labels: bool = True
 
     def __post_init__(self) -> None:
@@ -333,6 +338,8 @@ class MappingSettings:
         )
         if not 0 <= self.ssim_weight <= 1:
             raise ConfigError(f"mapping.ssim_weight must be in [0, 1], got {self.ssim_weight}")
+        if self.max_scale_px is not None and not self.max_scale_px > 0:
+            raise ConfigError(f"mapping.max_scale_px must be > 0 px or null, got {self.max_scale_px}")
 
 
 @dataclass(frozen=True)

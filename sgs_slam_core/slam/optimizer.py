@@ -62,6 +62,22 @@ class GaussianOptimizer:
                     p.grad[frozen] = 0
         self.adam.step()
 
+    @torch.no_grad()
+    def cap_scales(self, w2c: Tensor, focal_px: float, max_px: float) -> None:  # w2c [4, 4]
+        """Shrink Gaussians in front of camera ``w2c`` to at most ``max_px`` px of standard deviation at their depth.
+
+        ``focal_px``: the camera's focal length (px). Frozen Gaussians stay. A projection of the
+        parameters, as after any constrained step: the Adam moments are kept.
+        """
+        log_scales, means = self.params["log_scales"], self.params["means"]
+        depth = means @ w2c[2, :3].to(means.dtype) + w2c[2, 3].to(means.dtype)  # [N] camera z (m)
+        cap = torch.log(depth.clamp_min(1e-6) * (max_px / focal_px))[:, None]  # [N, 1]
+        shrink = (depth[:, None] > 0) & (log_scales > cap)
+        frozen = self.frozen()
+        if frozen is not None:
+            shrink &= ~frozen[:, None]
+        log_scales.copy_(torch.where(shrink, cap, log_scales))
+
     def prune(self, keep: Tensor) -> int:  # keep: [N] bool
         """Drop Gaussians where ``keep`` is False (frozen ones stay); returns how many were removed."""
         frozen = self.frozen()

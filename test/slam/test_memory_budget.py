@@ -360,3 +360,48 @@ def test_max_width_densifies_from_a_smaller_copy_of_wide_frames_only():
     half = first_frame(32)
     assert len(half) == 32 * 24
     assert torch.allclose(half.log_scales.exp(), torch.tensor(2.0 / 25.0))  # two pixels' footprint at 2 m
+
+
+def test_scale_cap_shrinks_only_splats_wider_than_the_bound_in_front_of_the_camera():
+    from sgs_slam_core.config.sections import MappingSettings
+    from sgs_slam_core.gaussians import GaussianMap
+    from sgs_slam_core.slam.optimizer import GaussianOptimizer
+
+    n = 4
+    means = torch.tensor([[0.0, 0.0, 2.0], [0.1, 0.0, 4.0], [0.0, 0.0, -2.0], [0.0, 0.1, 2.0]])
+    scales = torch.tensor([0.1, 0.001, 0.1, 0.1])  # 2 m: the bound is 3 px x 2 m / 50 px = 0.12 m at 4 m
+    g = GaussianMap(
+        means=means,
+        log_scales=torch.log(scales)[:, None],
+        logit_opacities=torch.zeros(n),
+        colors=torch.zeros(n, 3),
+        semantics=torch.zeros(n, 3),
+        labels=torch.tensor([1, 1, 1, 7]),
+        birth_frame=torch.zeros(n, dtype=torch.long),
+    )
+    w2c = torch.eye(4)
+    w2c[2, 3] = 0.0
+    opt = GaussianOptimizer(g, MappingSettings(), frozenset({7}))
+    opt.cap_scales(w2c, 50.0, 1.0)  # 1 px at 2 m = 4 cm
+    got = torch.exp(opt.result().log_scales[:, 0])
+    assert got[0] == pytest.approx(0.04)  # too wide: shrunk to the bound at its depth
+    assert got[1] == pytest.approx(0.001)  # narrower than its bound (8 cm at 4 m): unchanged
+    assert got[2] == pytest.approx(0.1)  # behind the camera: not judged from this view
+    assert got[3] == pytest.approx(0.1)  # a locked class never changes
+    with pytest.raises(ConfigError):
+        MappingSettings(max_scale_px=0.0)
+
+
+def test_slam_with_a_scale_cap_keeps_every_splat_under_it_in_the_last_view(tiny_scene):
+    data = open_dataset(tiny_scene)
+    slam = Slam(load_config("synthetic", overrides=[*FAST_SLAM, "mapping.max_scale_px=1.0"]), data.label_table)
+    for i in range(6):
+        slam.process(data[i])
+    g, k = slam.gaussians, slam.intrinsics
+    w2c = torch.as_tensor(np.linalg.inv(slam.last_c2w), dtype=torch.float32)
+    depth = g.means @ w2c[2, :3] + w2c[2, 3]
+    seen = depth > 0.1
+    px = torch.exp(g.log_scales[:, 0]) * 0.5 * (k.fx + k.fy) / depth
+    assert seen.sum() > 1000
+    # the last steps drew older window frames, from where the bound differs a little (uncapped, 32 % exceed it)
+    assert float((px[seen] > 1.05).float().mean()) < 0.05
