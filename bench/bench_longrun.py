@@ -107,7 +107,7 @@ def gpu_peak_mb(device: str) -> float:
 
 @torch.no_grad()
 def render_work(slam: Slam, c2w: np.ndarray, tile: int = 16) -> int:
-    """Gaussian x tile pairs when the map is rendered from ``c2w`` [4, 4]: the compositor's work, without timing noise."""
+    """Gaussian x tile pairs when the map is rendered from ``c2w`` [4, 4]: the compositor's work, untimed."""
     g, k = slam.gaussians, slam.intrinsics
     if k is None or not len(g):
         return 0
