@@ -288,7 +288,7 @@ class MappingSettings:
         prune_opacity: remove Gaussians below this opacity.
         prune_scale_ratio: remove Gaussians larger than this times the scene radius.
         scene_radius_depth_ratio: scene radius = max first-frame depth / this.
-        max_scale_px: after each step, Gaussians in front of the step's camera are shrunk to at
+        max_scale_px: after each step, Gaussians the step's camera sees are shrunk to at
             most this many pixels of standard deviation at their depth there (None = unbounded, as
             the reference): over thousands of steps on revisited views the splats otherwise keep
             growing, and every render with them.

@@ -122,8 +122,7 @@ def map_window(
         with stage("map.step"):
             opt.step()
             if s.max_scale_px is not None:
-                k = data.intrinsics
-                opt.cap_scales(wf.w2c, 0.5 * (k.fx + k.fy), s.max_scale_px)
+                opt.cap_scales(wf.w2c, data.intrinsics, s.max_scale_px)
         if it in prune_at:
             with stage("map.prune"):
                 pruned += opt.prune(prune_mask(opt.gaussians(), s.prune_opacity, s.prune_scale_ratio * scene_radius))

@@ -7,6 +7,7 @@ from torch import Tensor
 
 from sgs_slam_core.config.sections import MappingSettings
 from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.slam.adam import FusedAdam
 
 __all__ = ["GaussianOptimizer"]
@@ -63,16 +64,21 @@ class GaussianOptimizer:
         self.adam.step()
 
     @torch.no_grad()
-    def cap_scales(self, w2c: Tensor, focal_px: float, max_px: float) -> None:  # w2c [4, 4]
-        """Shrink Gaussians in front of camera ``w2c`` to at most ``max_px`` px of standard deviation at their depth.
+    def cap_scales(self, w2c: Tensor, k: Intrinsics, max_px: float) -> None:  # w2c [4, 4]
+        """Shrink Gaussians seen by camera ``w2c`` to at most ``max_px`` px of standard deviation at their depth.
 
-        ``focal_px``: the camera's focal length (px). Frozen Gaussians stay. A projection of the
-        parameters, as after any constrained step: the Adam moments are kept.
+        Only centres projecting into the image count: one beside the camera, near its image plane,
+        would get a needlessly small bound. Frozen Gaussians stay. A projection of the parameters, as
+        after any constrained step: the Adam moments are kept.
         """
         log_scales, means = self.params["log_scales"], self.params["means"]
-        depth = means @ w2c[2, :3].to(means.dtype) + w2c[2, 3].to(means.dtype)  # [N] camera z (m)
-        cap = torch.log(depth.clamp_min(1e-6) * (max_px / focal_px))[:, None]  # [N, 1]
-        shrink = (depth[:, None] > 0) & (log_scales > cap)
+        rot, trans = w2c[:3, :3].to(means.dtype), w2c[:3, 3].to(means.dtype)
+        x, y, z = (means @ rot.T + trans).unbind(-1)  # [N] camera frame (m)
+        z_safe = z.clamp_min(1e-6)
+        u, v = k.fx * x / z_safe + k.cx, k.fy * y / z_safe + k.cy
+        seen = (z > 0) & (u >= -0.5) & (u <= k.width - 0.5) & (v >= -0.5) & (v <= k.height - 0.5)
+        cap = torch.log(z_safe * (2 * max_px / (k.fx + k.fy)))[:, None]  # [N, 1]
+        shrink = seen[:, None] & (log_scales > cap)
         frozen = self.frozen()
         if frozen is not None:
             shrink &= ~frozen[:, None]

@@ -367,27 +367,26 @@ def test_scale_cap_shrinks_only_splats_wider_than_the_bound_in_front_of_the_came
     from sgs_slam_core.gaussians import GaussianMap
     from sgs_slam_core.slam.optimizer import GaussianOptimizer
 
-    n = 4
-    means = torch.tensor([[0.0, 0.0, 2.0], [0.1, 0.0, 4.0], [0.0, 0.0, -2.0], [0.0, 0.1, 2.0]])
-    scales = torch.tensor([0.1, 0.001, 0.1, 0.1])  # 2 m: the bound is 3 px x 2 m / 50 px = 0.12 m at 4 m
+    n = 5
+    means = torch.tensor([[0.0, 0.0, 2.0], [0.1, 0.0, 4.0], [0.0, 0.0, -2.0], [0.0, 0.1, 2.0], [3.0, 0.0, 0.5]])
+    scales = torch.tensor([0.1, 0.001, 0.1, 0.1, 0.1])
     g = GaussianMap(
         means=means,
         log_scales=torch.log(scales)[:, None],
         logit_opacities=torch.zeros(n),
         colors=torch.zeros(n, 3),
         semantics=torch.zeros(n, 3),
-        labels=torch.tensor([1, 1, 1, 7]),
+        labels=torch.tensor([1, 1, 1, 7, 1]),
         birth_frame=torch.zeros(n, dtype=torch.long),
     )
-    w2c = torch.eye(4)
-    w2c[2, 3] = 0.0
     opt = GaussianOptimizer(g, MappingSettings(), frozenset({7}))
-    opt.cap_scales(w2c, 50.0, 1.0)  # 1 px at 2 m = 4 cm
+    opt.cap_scales(torch.eye(4), K, 1.0)  # 1 px at 2 m = 4 cm
     got = torch.exp(opt.result().log_scales[:, 0])
     assert got[0] == pytest.approx(0.04)  # too wide: shrunk to the bound at its depth
     assert got[1] == pytest.approx(0.001)  # narrower than its bound (8 cm at 4 m): unchanged
     assert got[2] == pytest.approx(0.1)  # behind the camera: not judged from this view
     assert got[3] == pytest.approx(0.1)  # a locked class never changes
+    assert got[4] == pytest.approx(0.1)  # in front but outside the image: not judged from this view
     with pytest.raises(ConfigError):
         MappingSettings(max_scale_px=0.0)
 
