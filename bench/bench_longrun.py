@@ -129,7 +129,7 @@ def render_work(slam: Slam, c2w: np.ndarray, tile: int = 16) -> int:
 
 
 def scale_p90_mm(slam: Slam) -> float:
-    """90th percentile of the Gaussians' largest scale (mm); 0 for an empty map."""
+    """90th percentile of the Gaussians' largest scale (mm; over every 7th Gaussian); 0 for an empty map."""
     g = slam.gaussians
     if not len(g):
         return 0.0

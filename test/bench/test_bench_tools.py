@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
 from bench.bench_slam import LABELS, ops_table, profile_frames, profile_table
 from bench.plot import Series, line_chart, line_panel, save_panels
@@ -77,7 +78,8 @@ def test_long_run_loops_report_their_means_and_the_drift_from_loop_two(tmp_path)
     for f in range(2, 3 * period + 1, 2):
         later = f > period  # loops 2 and 3 hold more than loop 1, and the same as each other
         rss, gaussians = 400.0 + 10 * later, 1000 + 50 * later
-        samples.append(Sample(f, rss, 410.0, gaussians, 1.0, 4, 0.5, 0, 1.0, 0.9, 800.0 + f))
+        work = 2000 + 100 * later
+        samples.append(Sample(f, rss, 410.0, gaussians, 1.0, 4, 0.5, 0, 1.0, 0.9, 800.0 + f, 0.2, 0.8, 2.0, work, 9.0))
     est = np.stack([np.eye(4)] * 3 * period)
     gt = est.copy()
     rows = per_loop(samples, est, gt, period)
@@ -85,5 +87,7 @@ def test_long_run_loops_report_their_means_and_the_drift_from_loop_two(tmp_path)
     assert rows[0].gaussians == 1000 and rows[1].gaussians == rows[2].gaussians == 1050
     assert rows[2].gpu_peak_mb == 800.0 + 3 * period  # the highest of the loop's samples
     assert drift(rows, "gaussians") == 0.0 and drift(rows, "rss_mb") == 0.0
+    assert rows[0].intersections == 2000 and rows[2].intersections == 2100 and rows[1].map_s == pytest.approx(0.8)
     body = report(rows, samples, RESULTS / "x.png", "What ran.")
     assert "| GPU peak MB |" in body and "| 818 |" in body and "Gaussians 0.0 %" in body
+    assert "| tile pairs M |" in body and "tile pairs 0.0 %" in body
