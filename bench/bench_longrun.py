@@ -41,6 +41,7 @@ from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.metrics import ate
 from sgs_slam_core.render.output import camera_covariances, to_camera
 from sgs_slam_core.render.projection import project_gaussians
+from sgs_slam_core.render.tiling import plan_tiles
 from sgs_slam_core.slam.footprint import footprint
 from sgs_slam_core.slam.system import Slam
 from sgs_slam_core.synthetic import SynthConfig
@@ -108,7 +109,7 @@ def gpu_peak_mb(device: str) -> float:
 @torch.no_grad()
 def render_work(slam: Slam, c2w: np.ndarray, tile: int = 16) -> int:
     """Gaussian x tile pairs when the map is rendered from ``c2w`` [4, 4]: the compositor's work, untimed."""
-    g, k = slam.gaussians, slam.intrinsics
+    g, k, s = slam.gaussians, slam.intrinsics, slam.config.render
     if k is None or not len(g):
         return 0
     w2c = torch.as_tensor(np.linalg.inv(c2w), dtype=g.means.dtype, device=g.means.device)
@@ -117,15 +118,13 @@ def render_work(slam: Slam, c2w: np.ndarray, tile: int = 16) -> int:
         cam.means,
         cam.opacities,
         k,
-        slam.config.render,
+        s,
         scales=cam.scales if g.isotropic else None,
         covars_cam=None if g.isotropic else camera_covariances(cam),
     )
-    u, v, r = proj.means2d[:, 0], proj.means2d[:, 1], proj.radii
-    x0, x1 = ((u - r).clamp(0, k.width - 1) // tile), ((u + r).clamp(0, k.width - 1) // tile)
-    y0, y1 = ((v - r).clamp(0, k.height - 1) // tile), ((v + r).clamp(0, k.height - 1) // tile)
-    inside = (r > 0) & (u + r >= 0) & (u - r <= k.width - 1) & (v + r >= 0) & (v - r <= k.height - 1)
-    return int(((x1 - x0 + 1) * (y1 - y0 + 1))[inside].sum())
+    return plan_tiles(
+        proj.means2d, proj.radii, proj.depths, k.width, k.height, tile, s.chunk_elements
+    ).num_intersections
 
 
 def scale_p90_mm(slam: Slam) -> float:
