@@ -8,9 +8,11 @@
 #   bash bench/gpu_suite.sh prepare-ros        # here: the ROS 2 wheels for Python 3.12 into .whl_ros/
 #   bash bench/gpu_suite.sh ros                # there, a second call carrying .whl_ros: slam_node on CUDA
 #   bash bench/gpu_suite.sh smoke              # here, on the CPU: the same steps at toy sizes
-#   bash bench/gpu_suite.sh longrun            # there, carrying .whl: 2,000 looping frames at 640x480 (memory
-#                                              # held over a long run) beside the room's 200 frames densified
-#                                              # at half width; `longrun-smoke` runs it here at toy sizes
+#   bash bench/gpu_suite.sh longrun [K=V...]   # there, carrying .whl: 2,000 looping frames at 640x480 (memory
+#                                              # held over a long run) beside the room's 200 frames, both with
+#                                              # the given config overrides (and the 200 again without them);
+#                                              # $SGS_GPU_LONGRUN_TAG names the result files; `longrun-smoke`
+#                                              # runs it here at toy sizes
 #
 # The device call sends the checkout plus carried folders, 64 MiB in all. .whl holds gsplat and the
 # run-time dependencies the GPU image may lack (matplotlib and its dependencies, tqdm: ~31 MB with
@@ -151,8 +153,11 @@ run_suite() {
   echo "done: see $OUT/summary.txt$([ "$device" = cuda ] && echo " and $OUT/BENCHMARKS-gpu.md")"
 }
 
-run_longrun() {  # run_longrun DEVICE WIDTH HEIGHT FRAMES LOOP_FRAMES ROOM_FRAMES
+run_longrun() {  # run_longrun DEVICE WIDTH HEIGHT FRAMES LOOP_FRAMES ROOM_FRAMES [KEY=VALUE...]
   local device=$1 w=$2 h=$3 frames=$4 loop=$5 room_frames=$6
+  shift 6
+  local sets=() tag=${SGS_GPU_LONGRUN_TAG:-}
+  for kv in "$@"; do sets+=(--set "$kv"); done
   begin_suite "$device"
   local build_pid=""
   if [ "$device" = cuda ]; then  # gsplat compiles while the room renders; a run importing it earlier fails
@@ -162,13 +167,17 @@ run_longrun() {  # run_longrun DEVICE WIDTH HEIGHT FRAMES LOOP_FRAMES ROOM_FRAME
   local room=/tmp/sgs_room_longrun
   step synth 200 $PY -m sgs_slam_core.cli synth "$room" --preset room --width "$w" --height "$h" --frames "$room_frames" --overwrite
   [ -n "$build_pid" ] && wait "$build_pid"
-  # beside the long run: the room's standard 200 frames densified at half width (peak GPU memory, accuracy)
-  step slam_room_w320 300 $PY bench/bench_slam.py "$room" --preset synthetic --device "$device" \
-    --set densify.max_width=$((w / 2)) --out "$OUT/run_room_w320" &
+  # beside the long run: the room's standard 200 frames under the same settings (peak GPU memory,
+  # accuracy), then, where settings were given, without them (the baseline from the same call)
+  (step slam_room_set 300 $PY bench/bench_slam.py "$room" --preset synthetic --device "$device" "${sets[@]}" \
+     --out "$OUT/run_room_set"
+   [ ${#sets[@]} -gt 0 ] && step slam_room_base 300 $PY bench/bench_slam.py "$room" --preset synthetic \
+     --device "$device" --out "$OUT/run_room_base") &
   local side=$!
   # the long run gets what is left; on SIGTERM (timeout) it stops and still reports what it measured
   step longrun $((DEADLINE - SECONDS - 40)) $PY bench/bench_longrun.py --width "$w" --height "$h" --frames "$frames" \
-    --loop-frames "$loop" --device "$device" --mapping-iterations 10 --set tracking.method=gauss_newton --every 20
+    --loop-frames "$loop" --device "$device" --mapping-iterations 10 --set tracking.method=gauss_newton "${sets[@]}" \
+    --every 20 ${tag:+--tag "$tag"}
   wait "$side"
   cp bench/results/longrun_"${w}x${h}"_* "$OUT/" 2>/dev/null
   for run in "$OUT"/run_*; do
@@ -183,7 +192,7 @@ case "$mode" in
   ros) PY=${PY:-python3} run_ros ;;
   run) PY=${PY:-python3} run_suite cuda 1 200 "${SGS_GPU_TUM_FRAMES:-30}" ;;
   smoke) PY=${PY:-.venv/bin/python} OUT=${OUT:-/tmp/gpu_suite_smoke} run_suite cpu 8 6 6 ;;
-  longrun) PY=${PY:-python3} run_longrun cuda 640 480 2000 60 200 ;;
-  longrun-smoke) PY=${PY:-.venv/bin/python} OUT=${OUT:-/tmp/gpu_longrun_smoke} run_longrun cpu 64 48 30 6 6 ;;
-  *) echo "usage: bash bench/gpu_suite.sh prepare [FRAMES] | run | prepare-ros | ros | smoke | longrun | longrun-smoke" >&2; exit 2 ;;
+  longrun) PY=${PY:-python3} run_longrun cuda 640 480 2000 60 200 "${@:2}" ;;
+  longrun-smoke) PY=${PY:-.venv/bin/python} OUT=${OUT:-/tmp/gpu_longrun_smoke} run_longrun cpu 64 48 30 6 6 "${@:2}" ;;
+  *) echo "usage: bash bench/gpu_suite.sh prepare [FRAMES] | run | prepare-ros | ros | smoke | longrun [K=V...] | longrun-smoke [K=V...]" >&2; exit 2 ;;
 esac
