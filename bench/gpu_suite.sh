@@ -11,8 +11,9 @@
 #   bash bench/gpu_suite.sh longrun [K=V...]   # there, carrying .whl: 2,000 looping frames at 640x480 (memory
 #                                              # held over a long run) beside the room's 200 frames, both with
 #                                              # the given config overrides (and the 200 again without them);
-#                                              # $SGS_GPU_LONGRUN_TAG names the result files; `longrun-smoke`
-#                                              # runs it here at toy sizes
+#                                              # $SGS_GPU_LONGRUN_TAG names the result files, and
+#                                              # SGS_GPU_LONGRUN_SIDE=0 runs the long run alone;
+#                                              # `longrun-smoke` runs it here at toy sizes
 #
 # The device call sends the checkout plus carried folders, 64 MiB in all. .whl holds gsplat and the
 # run-time dependencies the GPU image may lack (matplotlib and its dependencies, tqdm: ~31 MB with
@@ -165,20 +166,26 @@ run_longrun() {  # run_longrun DEVICE WIDTH HEIGHT FRAMES LOOP_FRAMES ROOM_FRAME
     build_pid=$!
   fi
   local room=/tmp/sgs_room_longrun
-  step synth 200 $PY -m sgs_slam_core.cli synth "$room" --preset room --width "$w" --height "$h" --frames "$room_frames" --overwrite
+  local with_side=${SGS_GPU_LONGRUN_SIDE:-1}
+  [ "$with_side" != 0 ] && step synth 200 $PY -m sgs_slam_core.cli synth "$room" --preset room --width "$w" \
+    --height "$h" --frames "$room_frames" --overwrite
   [ -n "$build_pid" ] && wait "$build_pid"
   # beside the long run: the room's standard 200 frames under the same settings (peak GPU memory,
-  # accuracy), then, where settings were given, without them (the baseline from the same call)
-  (step slam_room_set 300 $PY bench/bench_slam.py "$room" --preset synthetic --device "$device" "${sets[@]}" \
-     --out "$OUT/run_room_set"
-   [ ${#sets[@]} -gt 0 ] && step slam_room_base 300 $PY bench/bench_slam.py "$room" --preset synthetic \
-     --device "$device" --out "$OUT/run_room_base") &
-  local side=$!
+  # accuracy), then, where settings were given, without them (the baseline from the same call);
+  # SGS_GPU_LONGRUN_SIDE=0 leaves the long run alone on the machine (its time per frame undisturbed)
+  local side=""
+  if [ "$with_side" != 0 ]; then
+    (step slam_room_set 300 $PY bench/bench_slam.py "$room" --preset synthetic --device "$device" "${sets[@]}" \
+       --out "$OUT/run_room_set"
+     [ ${#sets[@]} -gt 0 ] && step slam_room_base 300 $PY bench/bench_slam.py "$room" --preset synthetic \
+       --device "$device" --out "$OUT/run_room_base") &
+    side=$!
+  fi
   # the long run gets what is left; on SIGTERM (timeout) it stops and still reports what it measured
   step longrun $((DEADLINE - SECONDS - 40)) $PY bench/bench_longrun.py --width "$w" --height "$h" --frames "$frames" \
     --loop-frames "$loop" --device "$device" --mapping-iterations 10 --set tracking.method=gauss_newton "${sets[@]}" \
     --every 20 ${tag:+--tag "$tag"}
-  wait "$side"
+  [ -n "$side" ] && wait "$side"
   cp bench/results/longrun_"${w}x${h}"_* "$OUT/" 2>/dev/null
   for run in "$OUT"/run_*; do
     [ -d "$run" ] && find "$run" -maxdepth 1 -type f \( -name '*.sgsmap' -o -name '*.ply' \) -delete
