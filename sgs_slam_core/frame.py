@@ -58,6 +58,11 @@ class Frame:
                 raise FrameError("gt_c2w is not finite; pass None for frames without ground truth")
 
     @property
+    def nbytes(self) -> int:
+        """Host memory held by this frame's images (bytes)."""
+        return self.rgb.nbytes + self.depth.nbytes + (self.labels.nbytes if self.labels is not None else 0)
+
+    @property
     def valid_depth_fraction(self) -> float:
         """Fraction of pixels with a depth measurement."""
         return float((self.depth > 0).mean())

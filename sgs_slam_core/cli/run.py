@@ -53,6 +53,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="replay as a live camera: frames released at their recorded stamps (or HZ per second), "
         "dropped while tracking is busy; mapping runs beside it (default: lockstep)",
     )
+    p.add_argument(
+        "--preload-mb",
+        type=FloatRange(0.0, 1e6),
+        default=RealtimeOptions.preload_mb,
+        metavar="MIB",
+        help="with --realtime: decode up to this many MiB of frames before the camera starts, as a camera "
+        "delivers decoded images (0..1e6, default %(default).0f; 0 = read each frame just before its release)",
+    )
     add_viewer_arguments(p)
     p.set_defaults(func=run)
 
@@ -141,7 +149,9 @@ def run(args: argparse.Namespace) -> int:
         "command": " ".join(sys.argv),
         "realtime": args.realtime,
     }
-    realtime = None if args.realtime is None else RealtimeOptions(None if args.realtime == "stamps" else args.realtime)
+    realtime = None
+    if args.realtime is not None:
+        realtime = RealtimeOptions(None if args.realtime == "stamps" else args.realtime, args.preload_mb)
     viewer = start_viewer(viewer_options)
     result = run_offline(
         dataset,

@@ -146,7 +146,7 @@ def _process_all(slam: Slam, dataset: Dataset, observers: list[Viewer], should_s
 
 
 def _process_realtime(
-    slam: Slam, dataset: Dataset, hz: float | None, observers: list[Viewer], should_stop: Callable[[], bool]
+    slam: Slam, dataset: Dataset, options: RealtimeOptions, observers: list[Viewer], should_stop: Callable[[], bool]
 ) -> _Loop:
     """Release the frames on time into the live pipeline; tracked frames only, in order."""
 
@@ -154,7 +154,7 @@ def _process_realtime(
         for observer in observers:  # progress bar (frames not tracked count as passed), live viewer
             observer.log_step(frame, step, slam)
 
-    live = run_realtime(slam, dataset, hz, on_tracked, should_stop)
+    live = run_realtime(slam, dataset, options, on_tracked, should_stop)
     loop = _Loop(
         bad_frames=live.stats.bad_frames, first_skip=live.first_skip, interrupted=live.interrupted, live=live.stats
     )
@@ -201,6 +201,7 @@ def _timing(loop: _Loop) -> dict[str, Any]:
         "frames_mapped": live.frames_mapped,
         "realtime_hz": live.realtime_hz,
         "late_frames": live.late_frames,
+        "preloaded_frames": live.preloaded_frames,
         "wall_s": live.wall_s,
     }
 
@@ -250,7 +251,7 @@ def _track_and_map(
                 if realtime is None:
                     loop = _process_all(slam, dataset, observers, stop)
                 else:
-                    loop = _process_realtime(slam, dataset, realtime.hz, observers, stop)
+                    loop = _process_realtime(slam, dataset, realtime, observers, stop)
         finally:
             for observer in observers:  # idempotent: flushes a viewer's stream when the loop stopped early
                 observer.close()

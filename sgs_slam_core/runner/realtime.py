@@ -6,8 +6,10 @@ recorded stamps (or at ``hz``) into the live pipeline,
 :class:`~sgs_slam_core.live.SlamPipeline`, the one the ROS nodes drive: a frame that arrives while
 the tracker is still busy replaces the one waiting for it (a camera driver's queue of one) and is
 counted as dropped; mapping runs beside tracking, at its own pace, on the newest tracked frame.
-Each frame is read from disk just before its release, so reading is not latency; a reader slower
-than the camera delays releases, counted as ``late_frames``.
+A camera delivers decoded images, so the frames are decoded before the camera's clock starts, as
+many as fit in ``RealtimeOptions.preload_mb``: decoding image files beside the SLAM would take
+cores that a robot's SLAM has to itself. Frames past that budget are read just before their
+release; a reader slower than the camera delays releases, counted as ``late_frames``.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sgs_slam_core.datasets.base import Dataset
-from sgs_slam_core.errors import DatasetError, FrameError
+from sgs_slam_core.errors import ConfigError, DatasetError, FrameError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.slam.outcomes import MapOutcome, StepResult, TrackOutcome
@@ -37,9 +39,18 @@ _LATE_S = 0.005  # s: a release this much after its time counts as late
 
 @dataclass(frozen=True)
 class RealtimeOptions:
-    """``hz``: release frames at this rate (Hz); None = at their recorded stamps."""
+    """``hz``: release frames at this rate (Hz); None = at their recorded stamps.
+
+    ``preload_mb``: decoded frames (MiB) read before the camera's clock starts; 0 = each frame is
+    read just before its release.
+    """
 
     hz: float | None = None
+    preload_mb: float = 1024.0
+
+    def __post_init__(self) -> None:
+        if not self.preload_mb >= 0:
+            raise ConfigError(f"the realtime preload must be >= 0 MiB, got {self.preload_mb}")
 
 
 @dataclass(frozen=True)
@@ -54,6 +65,7 @@ class RealtimeStats:
     wall_s: float  # from the camera's start (after initialisation) until mapping finished
     late_frames: int  # released later than their time (the reader could not keep up)
     bad_frames: int  # unreadable, or rejected by the SLAM (bad depth, stamps going backwards, ...)
+    preloaded_frames: int = 0  # decoded before the camera's clock started
 
 
 @dataclass
@@ -84,7 +96,7 @@ def release_times(stamps_ns: list[int], hz: float | None) -> np.ndarray:  # [N] 
 def run_realtime(
     slam: Slam,
     dataset: Dataset,
-    hz: float | None,
+    options: RealtimeOptions,
     on_tracked: Callable[[Frame, StepResult], None] | None = None,
     should_stop: Callable[[], bool] = lambda: False,
 ) -> RealtimeResult:
@@ -92,10 +104,14 @@ def run_realtime(
 
     ``on_tracked(frame, step)`` is called on this (the releasing) thread for each newly tracked frame,
     between releases (progress display, live viewer); ``step.map`` is not known yet there.
-    ``should_stop()`` is asked before each release: True ends the replay (the frames in flight finish).
-    A frame that cannot be read is skipped and counted with the frames the SLAM rejects.
+    ``should_stop()`` is asked while preloading and before each release: True ends the replay (the
+    frames in flight finish). A frame that cannot be read is skipped and counted with the frames
+    the SLAM rejects.
     """
-    return _Replay(slam, dataset, on_tracked).run(release_times(dataset.stamps_ns, hz), hz, should_stop)
+    times = release_times(dataset.stamps_ns, options.hz)
+    replay = _Replay(slam, dataset, on_tracked)
+    replay.preload(len(times), int(options.preload_mb * 2**20), should_stop)
+    return replay.run(times, options.hz, should_stop)
 
 
 class _Replay:
@@ -112,6 +128,8 @@ class _Replay:
         self.lock = threading.Lock()
         self.late, self.unreadable, self.first_skip = 0, 0, ""
         self.started = False  # the camera clock runs (after initialisation)
+        self.ahead: dict[int, Frame | None] = {}  # decoded before the clock started (None: unreadable)
+        self.preloaded = 0
 
     def on_pose(self, frame: Frame, outcome: TrackOutcome) -> None:  # tracking thread
         with self.lock:
@@ -131,6 +149,21 @@ class _Replay:
         while self.on_tracked is not None and not self.news.empty():
             frame, outcome = self.news.get()
             self.on_tracked(frame, StepResult(outcome, MapOutcome.not_mapped(), self.slam.num_gaussians))
+
+    def preload(self, n: int, budget_bytes: int, should_stop: Callable[[], bool]) -> None:
+        """Decode frames 0, 1, ... of ``n`` into ``ahead`` while they fit in ``budget_bytes``."""
+        used = 0
+        for i in range(n):
+            if should_stop():
+                return
+            frame = self.read(i)
+            used += 0 if frame is None else frame.nbytes
+            if used > budget_bytes:
+                return  # read again at its release, so the budget holds
+            self.ahead[i] = frame
+            self.preloaded += 1
+        if self.preloaded:
+            log.info("decoded %d frames (%.0f MiB) before the camera starts", self.preloaded, used / 2**20)
 
     def read(self, i: int) -> Frame | None:
         """Frame ``i``, or None (counted, logged) when it cannot be read."""
@@ -153,7 +186,8 @@ class _Replay:
                 if should_stop():
                     interrupted = True
                     break
-                frame = self.read(i)  # before its release time
+                # popped: preloaded frames leave memory as they are released
+                frame = self.ahead.pop(i) if i in self.ahead else self.read(i)  # before its release time
                 if frame is None:
                     continue
                 if self.tracked and i > 0 and not self.started:  # initialised: the camera starts moving now
@@ -200,4 +234,5 @@ class _Replay:
             wall_s=wall_s,
             late_frames=self.late,
             bad_frames=self.unreadable + st.tracking_errors,
+            preloaded_frames=self.preloaded,
         )

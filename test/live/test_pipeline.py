@@ -13,11 +13,11 @@ from sgs_slam_core.cli import main
 from sgs_slam_core.config import load_config
 from sgs_slam_core.config.sections import LiveSettings
 from sgs_slam_core.datasets import open_dataset
-from sgs_slam_core.errors import DatasetError
+from sgs_slam_core.errors import ConfigError, DatasetError, FrameError
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.metrics import read_tum_trajectory
-from sgs_slam_core.runner.realtime import _Replay, release_times, run_realtime
+from sgs_slam_core.runner.realtime import RealtimeOptions, _Replay, release_times, run_realtime
 from sgs_slam_core.slam.system import Slam, TrackOutcome
 
 from ..conftest import FAST_SLAM
@@ -271,13 +271,52 @@ def test_realtime_replay_accounts_for_every_frame(tiny_scene):
     dataset = open_dataset(tiny_scene)
     slam = Slam(load_config("synthetic", overrides=list(FAST_SLAM)), dataset.label_table)
     # 1 ms apart: faster than any machine tracks (at 100 Hz a fresh CI machine once tracked all 12)
-    result = run_realtime(slam, dataset, hz=1000.0)
+    result = run_realtime(slam, dataset, RealtimeOptions(hz=1000.0))
     st = result.stats
     assert st.frames_in == len(dataset) == st.frames_tracked + st.frames_dropped
+    assert st.preloaded_frames == len(dataset)  # 12 small frames: all decoded before the clock
     assert 1 <= st.frames_tracked < len(dataset) and st.frames_mapped >= 1
     assert result.dataset_indices[0] == 0 and result.dataset_indices == sorted(result.dataset_indices)
     assert st.realtime_hz == pytest.approx(1000.0)
     assert all(np.isfinite(s.c2w).all() for s in result.steps)
+
+
+class _Unreadable:
+    """A dataset of ``n`` frames of which ``bad`` cannot be read; counts the reads."""
+
+    def __init__(self, frames: list, bad: int) -> None:
+        self.frames, self.bad, self.reads = frames, bad, []
+
+    def __getitem__(self, i: int):
+        self.reads.append(i)
+        if i == self.bad:
+            raise FrameError("depth PNG truncated")
+        return self.frames[i]
+
+
+def test_a_replay_decodes_ahead_within_its_budget(tiny_scene):
+    frames = [open_dataset(tiny_scene)[i] for i in range(6)]
+    one = frames[0].nbytes
+    replay = _Replay(slam=None, dataset=_Unreadable(frames, bad=1), on_tracked=None)
+    replay.preload(6, 3 * one + one // 2, should_stop=lambda: False)
+    # frame 1 is unreadable (counted once, kept as None so it is not read again); 0, 2, 3 fit, 4 does not
+    assert sorted(replay.ahead) == [0, 1, 2, 3] and replay.ahead[1] is None and replay.preloaded == 4
+    assert replay.unreadable == 1 and "truncated" in replay.first_skip
+    assert replay.dataset.reads == [0, 1, 2, 3, 4]
+
+    none = _Replay(slam=None, dataset=_Unreadable(frames, bad=-1), on_tracked=None)
+    none.preload(6, 0, should_stop=lambda: False)
+    assert none.ahead == {} and none.preloaded == 0
+
+    asked = []
+    stopped = _Replay(slam=None, dataset=_Unreadable(frames, bad=-1), on_tracked=None)
+    stopped.preload(6, 10 * one, should_stop=lambda: asked.append(1) or len(asked) > 2)
+    assert stopped.preloaded == 2  # Ctrl-C while decoding ends the decoding
+
+
+def test_realtime_options_reject_a_negative_preload():
+    with pytest.raises(ConfigError, match="preload"):
+        RealtimeOptions(preload_mb=-1.0)
 
 
 def test_a_replay_keeps_poses_not_frames():
@@ -298,6 +337,7 @@ def test_cli_realtime_writes_the_counts(tiny_scene, tmp_path):
     assert main(["run", str(tiny_scene), "--out", str(out), "--realtime", "20", "--quiet", *sets]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["frames_in"] == 12 and metrics["realtime_hz"] == pytest.approx(20.0)
+    assert metrics["preloaded_frames"] == 12
     assert metrics["frames_tracked"] + metrics["frames_dropped"] == 12
     stamps, _ = read_tum_trajectory(out / "trajectory.txt")
     assert len(stamps) == metrics["frames_tracked"] == metrics["frames"]
@@ -325,3 +365,9 @@ def test_nodes_reach_the_slam_through_the_pipeline(tiny_scene):
         assert pipeline.stats.dropped_frames == 2
     finally:
         pipeline.shutdown()
+
+
+def test_cli_rejects_a_negative_preload(tiny_scene, tmp_path, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["run", str(tiny_scene), "--out", str(tmp_path / "rt"), "--realtime", "--preload-mb", "-1"])
+    assert stop.value.code == 2 and "--preload-mb" in capsys.readouterr().err
