@@ -65,7 +65,7 @@ class RealtimeStats:
     wall_s: float  # from the camera's start (after initialisation) until mapping finished
     late_frames: int  # released later than their time (the reader could not keep up)
     bad_frames: int  # unreadable, or rejected by the SLAM (bad depth, stamps going backwards, ...)
-    preloaded_frames: int = 0  # decoded before the camera's clock started
+    preloaded_frames: int = 0  # read before the camera's clock started (unreadable ones included)
 
 
 @dataclass

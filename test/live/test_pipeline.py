@@ -282,7 +282,7 @@ def test_realtime_replay_accounts_for_every_frame(tiny_scene):
 
 
 class _Unreadable:
-    """A dataset of ``n`` frames of which ``bad`` cannot be read; counts the reads."""
+    """A dataset of the given frames whose frame ``bad`` cannot be read; it records every read."""
 
     def __init__(self, frames: list, bad: int) -> None:
         self.frames, self.bad, self.reads = frames, bad, []
