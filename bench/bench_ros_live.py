@@ -88,7 +88,7 @@ def ros_run(bag: Path, args: argparse.Namespace) -> Outcome:
     from bench.pose_recorder import PoseRecorder  # noqa: PLC0415 - rclpy only for this run
 
     domain = random.randint(1, 100)
-    params = ("map_alignment:=optical",)
+    params = ("map_alignment:=optical", *args.params)
     if args.overrides:  # an empty list has no type a parameter can be declared with
         params += ("overrides:=[" + ",".join(f"'{o}'" for o in args.overrides) + "]",)
     with PoseRecorder(domain) as recorder:
@@ -137,6 +137,9 @@ def main() -> int:
     p.add_argument("--downscale", type=float, default=4.0, help="processing size: the input divided by this")
     p.add_argument("--preset", default="tum")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    p.add_argument(
+        "--param", dest="params", action="append", default=[], metavar="NAME:=VALUE", help="a slam_node parameter"
+    )
     p.add_argument("--semantics", action="store_true", help="the input has labels: the node subscribes them")
     p.add_argument("--repeats", type=int, default=3, help="live runs of each path (a live run varies run to run)")
     p.add_argument("--skip-lockstep", action="store_true", help="no lockstep run (its ATE is then not compared)")
@@ -162,8 +165,10 @@ def main() -> int:
     print(text)
     if not args.no_append:
         sets = ", ".join(args.overrides) or "none"
+        params = ", ".join(args.params) or "defaults"
         note = (
-            f"`{args.input.name}`, preset {args.preset}, downscale {args.downscale:g}, overrides {sets}; "
+            f"`{args.input.name}`, preset {args.preset}, downscale {args.downscale:g}, overrides {sets}, "
+            f"node parameters {params}; "
             "`bag_player` at the recorded rate into `slam_node` (shared memory, two processes, played once the "
             "node spins); each live path run repeatedly, alternating"
         )
