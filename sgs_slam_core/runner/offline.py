@@ -154,7 +154,7 @@ def _process_realtime(
         for observer in observers:  # progress bar (frames not tracked count as passed), live viewer
             observer.log_step(frame, step, slam)
 
-    live = run_realtime(slam, dataset, options, on_tracked, should_stop)
+    live = run_realtime(slam, dataset, options, on_tracked, should_stop, lambda line: print(line, file=sys.stderr))
     loop = _Loop(
         bad_frames=live.stats.bad_frames, first_skip=live.first_skip, interrupted=live.interrupted, live=live.stats
     )

@@ -99,6 +99,7 @@ def run_realtime(
     options: RealtimeOptions,
     on_tracked: Callable[[Frame, StepResult], None] | None = None,
     should_stop: Callable[[], bool] = lambda: False,
+    announce: Callable[[str], None] = log.info,
 ) -> RealtimeResult:
     """Release every frame of ``dataset`` on time into a live pipeline around ``slam``; wait for it.
 
@@ -106,11 +107,13 @@ def run_realtime(
     between releases (progress display, live viewer); ``step.map`` is not known yet there.
     ``should_stop()`` is asked while preloading and before each release: True ends the replay (the
     frames in flight finish). A frame that cannot be read is skipped and counted with the frames
-    the SLAM rejects.
+    the SLAM rejects. ``announce(line)`` tells the user about the decoding before the clock starts.
     """
     times = release_times(dataset.stamps_ns, options.hz)
     replay = _Replay(slam, dataset, on_tracked)
-    replay.preload(len(times), int(options.preload_mb * 2**20), should_stop)
+    if options.preload_mb > 0:
+        announce(f"decoding frames before the camera starts (up to {options.preload_mb:g} MiB)")
+        replay.preload(len(times), int(options.preload_mb * 2**20), should_stop)
     return replay.run(times, options.hz, should_stop)
 
 
@@ -162,8 +165,6 @@ class _Replay:
                 return  # read again at its release, so the budget holds
             self.ahead[i] = frame
             self.preloaded += 1
-        if self.preloaded:
-            log.info("decoded %d frames (%.0f MiB) before the camera starts", self.preloaded, used / 2**20)
 
     def read(self, i: int) -> Frame | None:
         """Frame ``i``, or None (counted, logged) when it cannot be read."""
