@@ -57,12 +57,12 @@ class Outcome:
         return [self.name, self.frames_in, self.tracked, f"{100 * self.fraction:.0f} %", ate_text]
 
 
-def bag_of(source: Path, work: Path) -> Path:
+def bag_of(source: Path, work: Path, compress: str) -> Path:
     """``source`` if it is a bag, else the dataset converted (full size: the node applies ``downscale``)."""
     if is_bag(source):
         return source
     bag = work / f"{source.name}_bag"
-    cmd = [sys.executable, "-m", "bags.cli", "convert", str(source), "--out", str(bag)]
+    cmd = [sys.executable, "-m", "bags.cli", "convert", str(source), "--out", str(bag), "--compress", compress]
     subprocess.run(cmd, check=True, capture_output=True, text=True)
     return bag
 
@@ -141,13 +141,16 @@ def main() -> int:
         "--param", dest="params", action="append", default=[], metavar="NAME:=VALUE", help="a slam_node parameter"
     )
     p.add_argument("--semantics", action="store_true", help="the input has labels: the node subscribes them")
+    p.add_argument(
+        "--compress", choices=["zstd", "none"], default="zstd", help="chunk compression of the bag a dataset becomes"
+    )
     p.add_argument("--repeats", type=int, default=3, help="live runs of each path (a live run varies run to run)")
     p.add_argument("--skip-lockstep", action="store_true", help="no lockstep run (its ATE is then not compared)")
     p.add_argument("--no-append", action="store_true")
     args = p.parse_args()
     work = Path(tempfile.mkdtemp(prefix="ros-live-"))
     try:
-        bag = bag_of(args.input, work)
+        bag = bag_of(args.input, work, args.compress)
         lockstep = None if args.skip_lockstep else cli_run(args.input, work / "lockstep", args, realtime=False)
         realtime, ros = [], []
         for _ in range(args.repeats):  # alternating, so a slow spell of the machine hits both paths
@@ -167,7 +170,8 @@ def main() -> int:
         sets = ", ".join(args.overrides) or "none"
         params = ", ".join(args.params) or "defaults"
         note = (
-            f"`{args.input.name}`, preset {args.preset}, downscale {args.downscale:g}, overrides {sets}, "
+            f"`{args.input.name}` (bag chunks: {args.compress}), preset {args.preset}, downscale {args.downscale:g}, "
+            f"overrides {sets}, "
             f"node parameters {params}; "
             "`bag_player` at the recorded rate into `slam_node` (shared memory, two processes, played once the "
             "node spins); each live path run repeatedly, alternating"
