@@ -171,8 +171,7 @@ def main() -> int:
         params = ", ".join(args.params) or "defaults"
         note = (
             f"`{args.input.name}` (bag chunks: {args.compress}), preset {args.preset}, downscale {args.downscale:g}, "
-            f"overrides {sets}, "
-            f"node parameters {params}; "
+            f"overrides {sets}, node parameters {params}; "
             "`bag_player` at the recorded rate into `slam_node` (shared memory, two processes, played once the "
             "node spins); each live path run repeatedly, alternating"
         )

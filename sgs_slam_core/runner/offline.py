@@ -65,6 +65,11 @@ class RunResult:
     steps: list[StepResult] = field(default_factory=list)
 
 
+def _announce(line: str) -> None:
+    """A line for the user before the progress bar runs (compiling, decoding ahead), on stderr."""
+    print(line, file=sys.stderr)
+
+
 def _peak_memory_mb(device: torch.device) -> float:
     if device.type == "cuda":
         return torch.cuda.max_memory_allocated(device) / 2**20
@@ -154,7 +159,7 @@ def _process_realtime(
         for observer in observers:  # progress bar (frames not tracked count as passed), live viewer
             observer.log_step(frame, step, slam)
 
-    live = run_realtime(slam, dataset, options, on_tracked, should_stop, lambda line: print(line, file=sys.stderr))
+    live = run_realtime(slam, dataset, options, on_tracked, should_stop, _announce)
     loop = _Loop(
         bad_frames=live.stats.bad_frames, first_skip=live.first_skip, interrupted=live.interrupted, live=live.stats
     )
@@ -240,7 +245,7 @@ def _track_and_map(
         slam = Slam(config, dataset.label_table)
         provenance.update(environment(slam.device))
         write_run_info(out / "run.yaml", provenance, "running")
-        slam.prepare(lambda line: print(line, file=sys.stderr))  # compile before anything is timed
+        slam.prepare(_announce)  # compile before anything is timed
         label = "slam" if realtime is None else "slam (realtime)"
         observers: list[Viewer] = [
             *([SlamProgress(len(dataset), label)] if show_progress else []),
