@@ -76,8 +76,9 @@ class GaussNewtonSettings:
         photometric_levels: the finest this many pyramid levels carry the intensity and semantic
             terms (0 = every level); coarser levels align depth alone, which converges from farther.
         keep_start: keep the starting pose where its tracking loss is lower than the solve's (the
-            Adam tracker keeps its best evaluated pose, the start included); off, the solve
-            always wins.
+            Adam tracker keeps its best evaluated pose, the start included), and the alignment
+            skips its own check against the start. Off, the solve wins wherever the alignment's
+            own cost is lower than at the start.
         adam_steps: steps of the Adam tracker after the Gauss-Newton solve (its loss, keeping the
             best evaluated pose, so never worse than the solve by that loss); 0 = none.
         adam_lr_scale: those steps' learning rates as a fraction of ``tracking.adam.lr_*`` (the solve

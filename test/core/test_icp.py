@@ -114,3 +114,62 @@ def test_a_result_worse_than_the_start_at_full_resolution_is_not_returned(monkey
     res = align(ref_c2w, ref_c2w @ motion, motion)
     assert np.allclose(res.src_to_ref.numpy(), motion)  # the start, not 65 cm away
     assert res.rms_m < 0.005
+
+
+def test_refine_device_returns_the_steps_result_unchecked(monkeypatch):
+    """The same sliding steps: refine_device hands back where they went; align_device keeps the start."""
+    from sgs_slam_core.geometry import icp
+
+    ref_c2w = pose((0.1, -0.05, 0.2), (2.0, -5.0, 1.0))
+    motion = pose((0.02, 0.0, 0.01), (0.5, 1.0, 0.0))
+    s = IcpSettings()
+    ref = icp_pyramid(room_depth(ref_c2w), K, len(s.steps_for(K.width)))
+    depth, start = room_depth(ref_c2w @ motion), torch.as_tensor(motion)
+    exact = icp.refine_device(depth, K, ref, start, s)
+    assert torch.allclose(exact, icp.align_device(depth, K, ref, start, s).src_to_ref)  # a good solve: the same
+    slide = torch.as_tensor(pose((0.05, 0.0, 0.0), (0.0, 0.0, 0.0)))
+    monkeypatch.setattr(icp, "_gauss_newton_step", lambda p, *_: slide @ p)
+    moved = icp.refine_device(depth, K, ref, start, s)
+    steps = sum(s.steps_for(K.width))
+    assert torch.allclose(moved, torch.linalg.matrix_power(slide, steps) @ start)
+    assert torch.allclose(icp.align_device(depth, K, ref, start, s).src_to_ref, start)
+
+
+def test_the_source_levels_are_the_full_vertex_map_subsampled_bit_for_bit():
+    """Each level's points from one vertex map equal that level's own vertex map, odd sizes included."""
+    from sgs_slam_core.geometry import icp
+    from sgs_slam_core.geometry.camera import vertex_map
+
+    for width, height in ((160, 120), (81, 61), (47, 33)):
+        k = Intrinsics(0.9 * width + 0.123, 0.87 * width + 0.77, width / 2 - 0.37, height / 2 + 0.211, width, height)
+        depth = torch.rand(height, width, generator=torch.Generator().manual_seed(width)) * 4
+        depth[depth < 0.3] = 0.0
+        depth[0, 0] = float("nan")
+        own = [vertex_map(d, level).reshape(-1, 3) for d, level in icp._scales(depth, k, 4)]
+        for a, b in zip(icp._source_points(vertex_map(depth, k), 4), own, strict=True):
+            assert torch.equal(a, b)
+        assert [level.shape for level in icp._source_levels(k, 4)] == [level.shape for _, level in icp._scales(depth, k, 4)]
+
+
+def test_the_erosion_is_max_pooling_of_the_negated_mask():
+    from sgs_slam_core.geometry import icp
+
+    generator = torch.Generator().manual_seed(0)
+    for shape in ((120, 160), (31, 41), (3, 3), (1, 5)):
+        for p in (0.5, 0.9, 0.99):
+            mask = (torch.rand(1, 1, *shape, generator=generator) < p).float()
+            pooled = -torch.nn.functional.max_pool2d(-mask, 3, stride=1, padding=1)
+            assert torch.equal(icp._erode(mask), pooled)
+
+
+def test_a_channel_pyramid_of_the_finest_levels_ends_a_full_one():
+    """The tracker builds only the levels that carry photometric terms; they equal a full pyramid's."""
+    from sgs_slam_core.geometry.icp import channel_pyramid, source_channels
+
+    generator = torch.Generator().manual_seed(1)
+    image = torch.rand(120, 160, 2, generator=generator)
+    valid = torch.rand(120, 160, generator=generator) < 0.95
+    full, finest = channel_pyramid(image, valid, 3), channel_pyramid(image, valid, 2)
+    assert all(torch.equal(a, b) for a, b in zip(full[1:], finest, strict=True))
+    full, finest = source_channels(image, 3), source_channels(image, 1)
+    assert torch.equal(full[-1], finest[0])

@@ -135,11 +135,13 @@ def test_with_keep_start_a_solve_that_explains_the_frame_worse_than_its_start_is
     assert np.linalg.norm(solved.w2c[:3, 3]) < 0.5 * np.linalg.norm(start[:3, 3])  # a good solve is kept
     assert solved.rendering is not None
 
-    def astray(*args, **kwargs):  # a solve gone wrong: 20 cm sideways
-        jump = se3_exp(torch.tensor([0.2, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=torch.float64))
+    jump = se3_exp(torch.tensor([0.2, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=torch.float64))  # a solve gone wrong
+
+    def astray(*args, **kwargs):  # align_device: checked against its start (keep_start off)
         return DeviceAlignment(jump, torch.tensor(1.0), torch.tensor(0.0), torch.tensor(1.0))
 
     monkeypatch.setattr(gauss_newton, "align_device", astray)
+    monkeypatch.setattr(gauss_newton, "refine_device", lambda *args, **kwargs: jump)  # keep_start: unchecked
     kept = GaussNewtonTracker(s, TORCH).track(gm, frame, start, False)
     assert np.array_equal(kept.w2c, start) and np.isfinite(kept.loss) and kept.valid_fraction > 0.3
     assert kept.loss < solved.loss * 10 and kept.rendering is not None  # the start's own rendering

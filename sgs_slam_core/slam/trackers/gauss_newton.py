@@ -20,7 +20,14 @@ from sgs_slam_core.config.sections import TrackingSettings
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
-from sgs_slam_core.geometry.icp import IcpLevel, align_device, channel_pyramid, icp_pyramid, source_channels
+from sgs_slam_core.geometry.icp import (
+    IcpLevel,
+    align_device,
+    channel_pyramid,
+    icp_pyramid,
+    refine_device,
+    source_channels,
+)
 from sgs_slam_core.geometry.se3 import se3_inverse
 from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.profiling import stage
@@ -97,7 +104,7 @@ class GaussNewtonTracker:
         levels = len(self.icp.steps_for(k.width))
         depth = torch.where(frame.valid, frame.depth, 0.0)
         channels = self._channels(frame.rgb, frame.semantic if semantic else None)
-        sources = None if channels is None else self._photometric(source_channels(channels, levels))
+        sources = None if channels is None else self._photometric(source_channels(channels, self._kept(levels)), levels)
         eye = torch.eye(4, dtype=torch.float64, device=w2c.device)
         rendered: list[RenderOutput] = []
         for i in range(self.gn.renders):
@@ -106,9 +113,17 @@ class GaussNewtonTracker:
                 rendered.append(self.kernels.render(gaussians, k, w2c.float(), with_semantics=with_semantics))
             with stage("track.solve"):
                 reference = self._reference(rendered[-1], k, levels, semantic)
-                aligned = align_device(depth, k, reference, eye, self.icp, sources, self.kernels.icp)
-                w2c = se3_inverse(aligned.src_to_ref) @ w2c  # the frame's camera -> the rendered camera
+                aligned = self._align(depth, k, reference, eye, sources)
+                w2c = se3_inverse(aligned) @ w2c  # the frame's camera -> the rendered camera
         return w2c, rendered[0]  # renders >= 1: the settings check it
+
+    def _align(
+        self, depth: Tensor, k: Intrinsics, reference: list[IcpLevel], start: Tensor, sources: list[Tensor | None] | None
+    ) -> Tensor:  # [4, 4] float64 the frame's camera -> the rendered camera
+        """The alignment; with ``keep_start`` unchecked against its start, which :meth:`_judge` then does."""
+        if self.gn.keep_start:
+            return refine_device(depth, k, reference, start, self.icp, sources, self.kernels.icp)
+        return align_device(depth, k, reference, start, self.icp, sources, self.kernels.icp).src_to_ref
 
     def _reference(self, out: RenderOutput, k: Intrinsics, levels: int, semantic: bool) -> list[IcpLevel]:
         """The rendering as the alignment's reference, where the silhouette is confident.
@@ -122,16 +137,23 @@ class GaussNewtonTracker:
         channels = self._channels(out.color, out.semantic if semantic else None)
         if channels is None:
             return geometry
-        images = self._photometric(channel_pyramid(channels, confident, levels))
+        images = self._photometric(channel_pyramid(channels, confident, self._kept(levels)), levels)
         return [
             level if image is None else level.with_channels(image)
             for level, image in zip(geometry, images, strict=True)
         ]
 
-    def _photometric(self, levels: list[Tensor]) -> list[Tensor | None]:
-        """Per pyramid level (coarsest first), its channels where it carries the photometric terms, else None."""
-        keep = self.gn.photometric_levels or len(levels)
-        return [None if i < len(levels) - keep else level for i, level in enumerate(levels)]
+    def _kept(self, levels: int) -> int:
+        """How many of the finest of ``levels`` pyramid levels carry the photometric terms."""
+        return min(self.gn.photometric_levels or levels, levels)
+
+    def _photometric(self, finest: list[Tensor], levels: int) -> list[Tensor | None]:
+        """Per pyramid level (coarsest first), its channels where it carries the photometric terms, else None.
+
+        ``finest``: the channel pyramid of the :meth:`_kept` finest levels only; a pyramid is built
+        from the full image down, so these are the same levels a full pyramid would end with.
+        """
+        return [None] * (levels - len(finest)) + finest
 
     def _channels(self, rgb: Tensor, semantic: Tensor | None) -> Tensor | None:  # [H, W, 3], [H, W, S] -> [H, W, C]
         """Intensity and semantic features scaled to metres of residual; None when both terms are off."""
@@ -143,7 +165,9 @@ class GaussNewtonTracker:
             parts.append((rgb @ luma)[..., None])
         if semantic is not None:
             parts.append(semantic * self.gn.semantic_scale_m)
-        return torch.cat(parts, dim=-1) if parts else None
+        if len(parts) < 2:
+            return parts[0] if parts else None
+        return torch.cat(parts, dim=-1)
 
     def _judge(
         self,
