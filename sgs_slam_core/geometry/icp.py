@@ -200,15 +200,12 @@ def _scales(depth: Tensor, intrinsics: Intrinsics, levels: int) -> list[tuple[Te
         raise ShapeError(f"depth is {tuple(depth.shape)} but intrinsics are {intrinsics.shape}")
     if levels < 1:
         raise ShapeError(f"an ICP pyramid needs at least one level, got {levels}")
-    out = [(depth, intrinsics)]
-    for _ in range(levels - 1):
-        depth, intrinsics = depth[::2, ::2], _half(intrinsics)
-        out.append((depth, intrinsics))
-    return out[::-1]
+    cameras = _level_intrinsics(intrinsics, levels)
+    return [(depth[:: 2**i, :: 2**i], k) for i, k in zip(reversed(range(levels)), cameras, strict=True)]
 
 
-def _source_levels(intrinsics: Intrinsics, levels: int) -> list[Intrinsics]:
-    """The intrinsics of :func:`_scales`' levels, coarsest first."""
+def _level_intrinsics(intrinsics: Intrinsics, levels: int) -> list[Intrinsics]:
+    """The intrinsics of ``levels`` pyramid levels, each half the next, coarsest first."""
     out = [intrinsics]
     for _ in range(levels - 1):
         out.append(_half(out[-1]))
@@ -489,7 +486,7 @@ def _refine(
     if channels is not None and len(channels) != len(iterations):
         raise ShapeError(f"source channels have {len(channels)} levels, settings ask for {len(iterations)}")
     points = _source_points(vertex_map(depth, intrinsics), len(iterations))
-    levels = zip(_source_levels(intrinsics, len(iterations)), points, reference, iterations, strict=True)
+    levels = zip(_level_intrinsics(intrinsics, len(iterations)), points, reference, iterations, strict=True)
     for i, (k, src, ref, steps) in enumerate(levels):
         if k.shape != ref.intrinsics.shape:
             raise ShapeError(f"source level is {k.shape}, reference level {ref.intrinsics.shape}")

@@ -148,7 +148,6 @@ def test_the_source_levels_are_the_full_vertex_map_subsampled_bit_for_bit():
         own = [vertex_map(d, level).reshape(-1, 3) for d, level in icp._scales(depth, k, 4)]
         for a, b in zip(icp._source_points(vertex_map(depth, k), 4), own, strict=True):
             assert torch.equal(a, b)
-        assert [level.shape for level in icp._source_levels(k, 4)] == [level.shape for _, level in icp._scales(depth, k, 4)]
 
 
 def test_the_erosion_is_max_pooling_of_the_negated_mask():
