@@ -103,7 +103,8 @@ def test_densification_reuses_the_gauss_newton_trackers_rendering_while_the_map_
     from sgs_slam_core.slam import system
 
     tiny = open_dataset(tiny_scene)
-    slam = Slam(load_config("synthetic", None, [*FAST_SLAM, "tracking.method=gauss_newton"]), tiny.label_table)
+    solve = [*FAST_SLAM, "tracking.method=gauss_newton", "tracking.gauss_newton.iterations=[6,4,3]"]
+    slam = Slam(load_config("synthetic", None, solve), tiny.label_table)
     slam.process(tiny[0])
     seen = []
 

@@ -178,7 +178,8 @@ def test_the_method_is_a_config_value_with_checked_settings():
 def test_slam_with_the_gauss_newton_tracker_follows_the_tiny_scene(tiny_scene):
     """At 64x48 with 15 mapping steps a frame both trackers stay within a few cm (Adam: 3.5-4.4 cm)."""
     tiny = open_dataset(tiny_scene)
-    slam = Slam(load_config("synthetic", overrides=[*FAST_SLAM, "tracking.method=gauss_newton"]), tiny.label_table)
+    solve = [*FAST_SLAM, "tracking.method=gauss_newton", "tracking.gauss_newton.iterations=[6,4,3]"]
+    slam = Slam(load_config("synthetic", overrides=solve), tiny.label_table)
     errors = []
     for i in range(8):
         step = slam.process(tiny[i])
@@ -273,3 +274,17 @@ def test_the_compiled_step_matches_the_pytorch_reference():
         assert a.inliers.sum() > 500 and terms[50] == a.inliers.sum() and terms[52] == (points[:, 2] > 0).sum()
         assert torch.allclose(terms[49], cost, rtol=1e-5)
         assert torch.allclose(terms[51], (a.residual.double().square() * a.inliers).sum(), rtol=1e-5)
+
+
+def test_without_steps_the_start_is_judged_at_one_rendering():
+    gm, frame = target_frame(width=64, height=48)
+    start = se3_exp(torch.tensor([0.005, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=torch.float64)).numpy()
+    for keep_start in (False, True):
+        gn = GaussNewtonSettings(min_width=8, iterations=(0, 0), keep_start=keep_start)
+        s = TrackingSettings(method="gauss_newton", sil_threshold=0.99, gauss_newton=gn)
+        result = GaussNewtonTracker(s, TORCH).track(gm, frame, start, False)
+        assert np.array_equal(result.w2c, start) and result.renders == 1 and result.iterations == 0
+        assert np.isfinite(result.loss) and result.valid_fraction > 0.3 and result.rendering is not None
+    solving = replace(s, gauss_newton=replace(gn, iterations=(2, 2)))
+    moved = GaussNewtonTracker(solving, TORCH).track(gm, frame, start, False)
+    assert moved.renders == 2 and moved.loss < result.loss  # with steps it solves and renders again

@@ -44,7 +44,8 @@ class GaussNewtonTracker:
 
     The result is judged by the Adam tracker's loss at one more rendering, so the failure guard sees
     the same quantities whichever tracker runs; ``gauss_newton.adam_steps`` > 0 polishes it with
-    that many Adam steps instead.
+    that many Adam steps instead. With no steps at any level the start (the motion model's
+    prediction) is judged at its one rendering.
     """
 
     def __init__(self, settings: TrackingSettings, kernels: Kernels) -> None:
@@ -69,8 +70,12 @@ class GaussNewtonTracker:
         fixed = gaussians.detach()
         semantic = use_semantics and frame.semantic is not None and self.gn.semantic_scale_m > 0
         init = torch.as_tensor(init_w2c, dtype=torch.float64, device=fixed.device)
-        w2c, start = self._solve(fixed, frame, init, semantic, use_semantics and self.gn.keep_start)
         steps = sum(self.icp.steps_for(frame.intrinsics.width)) * self.gn.renders
+        if steps == 0 and self.gn.adam_steps == 0:  # no solve: the start, judged at its own rendering
+            with stage("track.render"), torch.no_grad():
+                start = self.kernels.render(fixed, frame.intrinsics, init.float(), with_semantics=use_semantics)
+            return self._judge(gaussians, frame, (init, start), use_semantics, init_w2c, 0, t0, at_start=True)
+        w2c, start = self._solve(fixed, frame, init, semantic, use_semantics and self.gn.keep_start)
         if self.gn.adam_steps > 0:
             scale = self.gn.adam_lr_scale
             a = self.settings.adam
@@ -118,7 +123,12 @@ class GaussNewtonTracker:
         return w2c, rendered[0]  # renders >= 1: the settings check it
 
     def _align(
-        self, depth: Tensor, k: Intrinsics, reference: list[IcpLevel], start: Tensor, sources: list[Tensor | None] | None
+        self,
+        depth: Tensor,  # [H, W] m, 0 = invalid
+        k: Intrinsics,
+        reference: list[IcpLevel],
+        start: Tensor,  # [4, 4] float64
+        sources: list[Tensor | None] | None,
     ) -> Tensor:  # [4, 4] float64 the frame's camera -> the rendered camera
         """The alignment; with ``keep_start`` unchecked against its start, which :meth:`_judge` then does."""
         if self.gn.keep_start:
@@ -178,24 +188,29 @@ class GaussNewtonTracker:
         init_w2c: np.ndarray,
         steps: int,
         t0: float,
+        at_start: bool = False,
     ) -> TrackResult:
         """The tracking loss at the solved pose and at the start, read back with the pose in one host read.
 
         With ``keep_start`` the solve is kept unless the start's loss is lower (the Adam tracker, too,
         keeps its best evaluated pose, the start included); without, the start's loss is not
-        computed. The rendering at the kept pose goes with the result, and densification reuses it
-        while ``gaussians`` is the map.
+        computed. ``at_start``: there was no solve, the pose is the start and ``solved``'s rendering
+        is at it, judged alone. The rendering at the kept pose goes with the result, and
+        densification reuses it while ``gaussians`` is the map.
         """
         w2c, start = solved
-        with stage("track.render"), torch.no_grad():
-            out = self.kernels.render(gaussians, frame.intrinsics, w2c.float(), with_semantics=use_semantics)
+        if at_start:
+            out, keep_start, renders = start, False, 1
+        else:
+            with stage("track.render"), torch.no_grad():
+                out = self.kernels.render(gaussians, frame.intrinsics, w2c.float(), with_semantics=use_semantics)
+            keep_start, renders = self.gn.keep_start, self.gn.renders + 1
         with stage("track.loss"):
-            judged = (out, start) if self.gn.keep_start else (out,)
+            judged = (out, start) if keep_start else (out,)
             stats = torch.cat([self._loss_stats(rendered, frame, use_semantics) for rendered in judged])
         values = torch.cat([stats, w2c.reshape(-1)]).cpu().numpy()
-        renders = self.gn.renders + 1
         pose = values[len(stats) :].reshape(4, 4)
-        if self.gn.keep_start and values[4] > 0 and (values[1] == 0 or values[3] < values[0]):  # the start is better
+        if keep_start and values[4] > 0 and (values[1] == 0 or values[3] < values[0]):  # the start is better
             values, pose, out = values[3:], init_w2c.copy(), start
         value, pixels, residual = (float(v) for v in values[:3])
         if pixels == 0:  # nothing explained at either pose: keep the prediction, as the Adam tracker does
