@@ -39,6 +39,7 @@ class Side:
     checkout: Path
     proc: subprocess.Popen
     totals: list[float] = field(default_factory=list)
+    tracking: list[float] = field(default_factory=list)
     finish: dict = field(default_factory=dict)
 
     def ask(self, cmd: dict) -> dict:
@@ -95,7 +96,9 @@ def main() -> None:
     frames = min(side.read()["frames"] for side in sides)
     for i in range(frames):
         for side in sides if i % 2 == 0 else sides[::-1]:
-            side.totals.append(side.ask({"frame": i})["total_s"])
+            reply = side.ask({"frame": i})
+            side.totals.append(reply["total_s"])
+            side.tracking.append(reply["track_s"])
         if i % 10 == 0:
             print(
                 f"frame {i}/{frames}: " + ", ".join(f"{s.name} {1e3 * s.totals[-1]:.0f} ms" for s in sides),
@@ -105,20 +108,25 @@ def main() -> None:
         side.finish = side.ask({"finish": True})
         side.proc.wait(timeout=60)
     base, new = (np.asarray(s.totals) * 1e3 for s in sides)
+    track_base, track_new = (np.asarray(s.tracking) * 1e3 for s in sides)
     rows = [
         [
             s.name,
             _commit(s.checkout),
             f"{np.mean(t):.0f}",
             f"{np.median(t):.0f}",
+            f"{np.median(tr):.1f}",
             f"{s.finish['num_gaussians']:,}",
             f"{s.finish['ate_rmse_m'] * 100:.2f}" if s.finish["ate_rmse_m"] is not None else "-",
         ]
-        for s, t in zip(sides, (base, new), strict=True)
+        for s, t, tr in zip(sides, (base, new), (track_base, track_new), strict=True)
     ]
     ratio_mean, ratio_median = np.mean(new) / np.mean(base), np.median(new) / np.median(base)
-    body = markdown_table(["side", "commit", "ms/frame (mean)", "ms/frame (median)", "Gaussians", "ATE cm"], rows)
+    headers = ["side", "commit", "ms/frame (mean)", "ms/frame (median)", "tracking ms (median)", "Gaussians", "ATE cm"]
+    body = markdown_table(headers, rows)
     body += (
+        f"\n\nTracking time new/base: {np.median(track_new) / np.median(track_base):.2f}x (medians), "
+        f"{np.mean(track_new) / np.mean(track_base):.2f}x (means)."
         f"\n\nTime per frame new/base: **{ratio_mean:.2f}x** (means), {ratio_median:.2f}x (medians); per-frame "
         f"ratios p10/p50/p90 {np.percentile(new / base, 10):.2f} / {np.percentile(new / base, 50):.2f} / "
         f"{np.percentile(new / base, 90):.2f}. {frames} frames of {data.name}, preset {preset}, "
