@@ -69,6 +69,37 @@ def _start(name: str, checkout: Path, worker_args: list[str]) -> Side:
     return Side(name, checkout, proc)
 
 
+def _report(sides: list[Side], frames: int, what: str, overrides: list[str]) -> str:
+    """The markdown table and ratios of both sides' per-frame times (``what``: the input and settings)."""
+    base, new = (np.asarray(s.totals) * 1e3 for s in sides)
+    track_base, track_new = (np.asarray(s.tracking) * 1e3 for s in sides)
+    rows = [
+        [
+            s.name,
+            _commit(s.checkout),
+            f"{np.mean(t):.0f}",
+            f"{np.median(t):.0f}",
+            f"{np.median(tr):.1f}",
+            f"{s.finish['num_gaussians']:,}",
+            f"{s.finish['ate_rmse_m'] * 100:.2f}" if s.finish["ate_rmse_m"] is not None else "-",
+        ]
+        for s, t, tr in zip(sides, (base, new), (track_base, track_new), strict=True)
+    ]
+    ratio_mean, ratio_median = np.mean(new) / np.mean(base), np.median(new) / np.median(base)
+    headers = ["side", "commit", "ms/frame (mean)", "ms/frame (median)", "tracking ms (median)", "Gaussians", "ATE cm"]
+    body = markdown_table(headers, rows)
+    body += (
+        f"\n\nTracking time new/base: {np.median(track_new) / np.median(track_base):.2f}x (medians), "
+        f"{np.mean(track_new) / np.mean(track_base):.2f}x (means)."
+        f"\n\nTime per frame new/base: **{ratio_mean:.2f}x** (means), {ratio_median:.2f}x (medians); per-frame "
+        f"ratios p10/p50/p90 {np.percentile(new / base, 10):.2f} / {np.percentile(new / base, 50):.2f} / "
+        f"{np.percentile(new / base, 90):.2f}. {frames} frames of {what}, "
+        f"overrides {overrides or 'none'}; frames interleaved (order alternating), "
+        "tracking + mapping timed, loading not.\n"
+    )
+    return body
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("input", nargs="?", type=Path, help="dataset folder (default: the synthetic room)")
@@ -107,32 +138,7 @@ def main() -> None:
     for side in sides:
         side.finish = side.ask({"finish": True})
         side.proc.wait(timeout=60)
-    base, new = (np.asarray(s.totals) * 1e3 for s in sides)
-    track_base, track_new = (np.asarray(s.tracking) * 1e3 for s in sides)
-    rows = [
-        [
-            s.name,
-            _commit(s.checkout),
-            f"{np.mean(t):.0f}",
-            f"{np.median(t):.0f}",
-            f"{np.median(tr):.1f}",
-            f"{s.finish['num_gaussians']:,}",
-            f"{s.finish['ate_rmse_m'] * 100:.2f}" if s.finish["ate_rmse_m"] is not None else "-",
-        ]
-        for s, t, tr in zip(sides, (base, new), (track_base, track_new), strict=True)
-    ]
-    ratio_mean, ratio_median = np.mean(new) / np.mean(base), np.median(new) / np.median(base)
-    headers = ["side", "commit", "ms/frame (mean)", "ms/frame (median)", "tracking ms (median)", "Gaussians", "ATE cm"]
-    body = markdown_table(headers, rows)
-    body += (
-        f"\n\nTracking time new/base: {np.median(track_new) / np.median(track_base):.2f}x (medians), "
-        f"{np.mean(track_new) / np.mean(track_base):.2f}x (means)."
-        f"\n\nTime per frame new/base: **{ratio_mean:.2f}x** (means), {ratio_median:.2f}x (medians); per-frame "
-        f"ratios p10/p50/p90 {np.percentile(new / base, 10):.2f} / {np.percentile(new / base, 50):.2f} / "
-        f"{np.percentile(new / base, 90):.2f}. {frames} frames of {data.name}, preset {preset}, "
-        f"downscale {downscale}, overrides {args.overrides or 'none'}; frames interleaved (order alternating), "
-        "tracking + mapping timed, loading not.\n"
-    )
+    body = _report(sides, frames, f"{data.name}, preset {preset}, downscale {downscale}", args.overrides)
     print(body)
     if not args.no_append:
         append_section(f"A/B: {data.name} x{downscale:g}, {preset}, new vs {_commit(args.base)}", body)
