@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from sgs_slam_core.errors import ConfigError, ShapeError
+from sgs_slam_core.geometry.depth_noise import DepthNoise
 from sgs_slam_core.geometry.gravity import OPTICAL_IN_BODY, pose_from_xyz_rpy
 from sgs_slam_core.geometry.icp import IcpSettings
 
@@ -83,6 +84,11 @@ class GaussNewtonSettings:
             best evaluated pose, so never worse than the solve by that loss); 0 = none.
         adam_lr_scale: those steps' learning rates as a fraction of ``tracking.adam.lr_*`` (the solve
             starts them near the optimum, where the full rates overshoot).
+        depth_noise: the depth camera's axial noise, ``base_m + quadratic_per_m (z - offset_m)^2``
+            (m; a Kinect v1's by default): each point-to-plane residual is weighed by the noise at
+            the frame's median depth over the noise at the point's depth, so ``huber_m`` is metres
+            at the median depth and the far background's noise does not outvote the near
+            surfaces. Null: every point weighs the same.
     """
 
     iterations: tuple[int, ...] = (6, 4, 3)
@@ -98,6 +104,7 @@ class GaussNewtonSettings:
     keep_start: bool = False
     adam_steps: int = 0
     adam_lr_scale: float = 0.25
+    depth_noise: DepthNoise | None = field(default_factory=DepthNoise)
 
     def __post_init__(self) -> None:
         if not self.iterations or any(n < 0 for n in self.iterations) or len(self.iterations) > 6:
@@ -124,7 +131,9 @@ class GaussNewtonSettings:
     @property
     def icp(self) -> IcpSettings:
         """The alignment's settings."""
-        return IcpSettings(self.iterations, self.max_distance_m, self.huber_m, self.damping, self.min_width)
+        return IcpSettings(
+            self.iterations, self.max_distance_m, self.huber_m, self.damping, self.min_width, self.depth_noise
+        )
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from torch import Tensor
 
 from sgs_slam_core.errors import ShapeError
 from sgs_slam_core.geometry.camera import Intrinsics, vertex_map
+from sgs_slam_core.geometry.depth_noise import DepthNoise
 from sgs_slam_core.geometry.se3 import se3_exp
 
 __all__ = [
@@ -54,6 +55,7 @@ class IcpTerms(Protocol):
         intrinsics: Intrinsics,  # the reference level's camera
         max_distance_m: float,
         huber_m: float,
+        weights: Tensor | None,  # [N] float32 depth-noise weights of the source points
     ) -> Tensor:  # [53] float64: normal matrix [49], truncated cost, correspondences, their sum r^2, source points
         """The terms at ``src_to_ref``."""
         ...
@@ -67,6 +69,7 @@ class IcpSteps(Protocol):
         src_to_ref: Tensor,  # [4, 4] float64
         points: Tensor,  # [N, 3] float32 source points, z = 0 where invalid
         values: Tensor | None,  # [N, C] float32 source channels
+        weights: Tensor | None,  # [N] float32 depth-noise weights of the source points
         ref: IcpLevel,
         s: IcpSettings,
         steps: int,
@@ -108,6 +111,10 @@ class IcpSettings:
             directions the geometry does not constrain (a single wall) at the prediction.
         min_width: coarse levels narrower than this (pixels) are left out, with their steps (on the
             64x48 test scene a 16x12 level made the result worse than the prediction).
+        depth_noise: the source camera's depth noise; each point-to-plane residual and its row are
+            then weighed by the noise at the source level's median depth over the noise at the
+            point's depth (:meth:`DepthNoise.weights`), so ``huber_m`` and the costs are metres at
+            that depth. None: every point weighs the same.
     """
 
     iterations: tuple[int, ...] = (6, 4, 3)
@@ -115,6 +122,7 @@ class IcpSettings:
     huber_m: float = 0.01
     damping: float = 1e-4
     min_width: int = 40
+    depth_noise: DepthNoise | None = None
 
     def steps_for(self, width: int) -> tuple[int, ...]:
         """Steps per level, coarsest first, for an image ``width`` pixels wide (the full image always)."""
@@ -305,6 +313,12 @@ class _Association:
     offset: Tensor | None  # [N, 2] projection minus the nearest pixel centre (pixels), with channels only
     residual: Tensor  # [N] point-to-plane residual (m)
     inliers: Tensor  # [N] bool
+    weight: Tensor | None  # [N] the depth-noise weight of each point's residual and row; None = 1
+
+    @property
+    def weighted(self) -> Tensor:  # [N]
+        """The point-to-plane residuals the alignment minimises (times their depth-noise weights)."""
+        return self.residual if self.weight is None else self.residual * self.weight
 
 
 def _associate(
@@ -312,6 +326,7 @@ def _associate(
     src: Tensor,  # [N, 3] camera-frame points of the source level, z = 0 where invalid
     ref: IcpLevel,
     max_distance_m: float,
+    weight: Tensor | None = None,  # [N] the source points' depth-noise weights
 ) -> _Association:
     rot, trans = src_to_ref[:3, :3].float(), src_to_ref[:3, 3].float()
     p = src @ rot.T + trans
@@ -327,7 +342,7 @@ def _associate(
     diff = p - target[:, :3]
     inliers = inside & (target[:, 6] > 0) & (diff.square().sum(-1) < max_distance_m**2)
     offset = torch.stack([uc + k.cx - u, vc + k.cy - v], dim=-1) if ref.num_channels else None
-    return _Association(p, target, offset, (diff * n).sum(-1), inliers)
+    return _Association(p, target, offset, (diff * n).sum(-1), inliers, weight)
 
 
 def _correspondences(
@@ -372,19 +387,32 @@ def _huber_weight(r: Tensor, usable: Tensor, huber_m: float) -> Tensor:
 
 
 def _gauss_newton_step(
-    src_to_ref: Tensor, src: Tensor, ref: IcpLevel, s: IcpSettings, values: Tensor | None = None
-) -> Tensor:  # src_to_ref [4, 4] float64, src [N, 3], values [N, C] or None -> the updated pose [4, 4]
-    return _solve(_normal_matrix(src_to_ref, src, ref, s, values), src_to_ref, s)
+    src_to_ref: Tensor,  # [4, 4] float64
+    src: Tensor,  # [N, 3]
+    ref: IcpLevel,
+    s: IcpSettings,
+    values: Tensor | None = None,  # [N, C]
+    weights: Tensor | None = None,  # [N] depth-noise weights
+) -> Tensor:  # the updated pose [4, 4]
+    return _solve(_normal_matrix(src_to_ref, src, ref, s, values, weights), src_to_ref, s)
 
 
 def _normal_matrix(
-    src_to_ref: Tensor, src: Tensor, ref: IcpLevel, s: IcpSettings, values: Tensor | None = None
+    src_to_ref: Tensor,  # [4, 4] float64
+    src: Tensor,  # [N, 3]
+    ref: IcpLevel,
+    s: IcpSettings,
+    values: Tensor | None = None,  # [N, C]
+    weights: Tensor | None = None,  # [N] depth-noise weights
 ) -> Tensor:  # [7, 7] float64: [J^T W J | J^T W r] of the Huber-weighted rows
-    a = _associate(src_to_ref, src, ref, s.max_distance_m)
-    p, n, r = a.points, a.target[:, 3:6], a.residual
+    a = _associate(src_to_ref, src, ref, s.max_distance_m, weights)
+    p, n, r = a.points, a.target[:, 3:6], a.weighted
     weight = _huber_weight(r, a.inliers, s.huber_m)
     # rows [d r / d (rho, phi) | r] for a left perturbation; one product gives J^T W J and J^T W r
-    rows = torch.cat([n, torch.linalg.cross(p, n), r[:, None]], dim=-1)  # [N, 7]
+    jacobian = torch.cat([n, torch.linalg.cross(p, n)], dim=-1)  # [N, 6]
+    if a.weight is not None:
+        jacobian = jacobian * a.weight[:, None]
+    rows = torch.cat([jacobian, r[:, None]], dim=-1)  # [N, 7]
     if values is not None:
         jac, rc, usable = _channel_rows(a, values, ref, ref.intrinsics)
         rows = torch.cat([rows, torch.cat([jac, rc[..., None]], dim=-1).reshape(-1, 7)])  # [N (1 + C), 7]
@@ -443,11 +471,11 @@ def align_device(
     """
     kernels = kernels or IcpKernels()
     init = init_src_to_ref.to(device=depth.device, dtype=torch.float64)
-    pose, points = _refine(depth, intrinsics, reference, init, s, channels, kernels)
+    pose, points, weights = _refine(depth, intrinsics, reference, init, s, channels, kernels)
     values = None if channels is None else channels[-1]
     if kernels.terms is None:
-        return _keep_better(init, pose, points, values, reference[-1], s)
-    start, end = (_terms(kernels.terms, p, points, values, reference[-1], s)[49:] for p in (init, pose))
+        return _keep_better(init, pose, (points, values, weights), reference[-1], s)
+    start, end = (_terms(kernels.terms, p, points, values, weights, reference[-1], s)[49:] for p in (init, pose))
     worse = end[0] > start[0]
     stats = torch.where(worse, start, end)
     return DeviceAlignment(torch.where(worse, init, pose), stats[1], stats[2], stats[3])
@@ -479,45 +507,62 @@ def _refine(
     s: IcpSettings,
     channels: Sequence[Tensor | None] | None,
     kernels: IcpKernels,
-) -> tuple[Tensor, Tensor]:  # the pose [4, 4] float64, the finest level's source points [H * W, 3]
+) -> tuple[Tensor, Tensor, Tensor | None]:  # the pose [4, 4] float64; the finest level's points [N, 3], weights [N]
     iterations = s.steps_for(intrinsics.width)
     if len(reference) != len(iterations):
         raise ShapeError(f"reference pyramid has {len(reference)} levels, settings ask for {len(iterations)}")
     if channels is not None and len(channels) != len(iterations):
         raise ShapeError(f"source channels have {len(channels)} levels, settings ask for {len(iterations)}")
     points = _source_points(vertex_map(depth, intrinsics), len(iterations))
+    weights = _noise_weights(points, s.depth_noise)
     levels = zip(_level_intrinsics(intrinsics, len(iterations)), points, reference, iterations, strict=True)
     for i, (k, src, ref, steps) in enumerate(levels):
         if k.shape != ref.intrinsics.shape:
             raise ShapeError(f"source level is {k.shape}, reference level {ref.intrinsics.shape}")
         values = None if channels is None else channels[i]
         if kernels.steps is not None:
-            pose = kernels.steps(pose, src, values, ref, s, steps)
+            pose = kernels.steps(pose, src, values, weights[i], ref, s, steps)
             continue
         for _ in range(steps):
-            pose = _gauss_newton_step(pose, src, ref, s, values)
-    return pose, points[-1]
+            pose = _gauss_newton_step(pose, src, ref, s, values, weights[i])
+    return pose, points[-1], weights[-1]
+
+
+def _noise_weights(points: list[Tensor], noise: DepthNoise | None) -> list[Tensor | None]:  # per level [N]
+    """Each level's depth-noise weights (each relative to its own median depth), or None per level."""
+    return [None if noise is None else noise.weights(p[:, 2]) for p in points]
 
 
 def _terms(
-    terms: IcpTerms, pose: Tensor, points: Tensor, values: Tensor | None, ref: IcpLevel, s: IcpSettings
+    terms: IcpTerms,
+    pose: Tensor,  # [4, 4] float64
+    points: Tensor,  # [N, 3]
+    values: Tensor | None,  # [N, C]
+    weights: Tensor | None,  # [N]
+    ref: IcpLevel,
+    s: IcpSettings,
 ) -> Tensor:  # [53] float64
-    return terms(pose, points, values, ref.packed, ref.intrinsics, s.max_distance_m, s.huber_m)
+    return terms(pose, points, values, ref.packed, ref.intrinsics, s.max_distance_m, s.huber_m, weights)
 
 
 def _keep_better(
-    init: Tensor, pose: Tensor, points: Tensor, values: Tensor | None, ref: IcpLevel, s: IcpSettings
+    init: Tensor,  # [4, 4] float64
+    pose: Tensor,  # [4, 4] float64
+    source: tuple[Tensor, Tensor | None, Tensor | None],  # the finest level's points [N, 3], values [N, C], weights [N]
+    ref: IcpLevel,
+    s: IcpSettings,
 ) -> DeviceAlignment:
     """``pose``, or ``init`` where its full-resolution truncated cost is lower.
 
     On a view with a weakly constrained direction the coarsest level's association can move a right
     start centimetres away, and the finer levels do not bring it back.
     """
+    points, values, weights = source
     valid_source = points[:, 2] > 0
-    a0, a = (_associate(p, points, ref, s.max_distance_m) for p in (init, pose))  # one association each
+    a0, a = (_associate(p, points, ref, s.max_distance_m, weights) for p in (init, pose))  # one association each
     r0, inliers0, r, inliers = a0.residual, a0.inliers, a.residual, a.inliers
-    cost0 = _truncated_cost(r0, inliers0, valid_source, s)
-    cost = _truncated_cost(r, inliers, valid_source, s)
+    cost0 = _truncated_cost(a0.weighted, inliers0, valid_source, s)
+    cost = _truncated_cost(a.weighted, inliers, valid_source, s)
     if values is not None:
         cost0 = cost0 + _channel_cost(a0, values, ref, s)
         cost = cost + _channel_cost(a, values, ref, s)

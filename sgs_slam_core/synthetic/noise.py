@@ -5,6 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from sgs_slam_core.geometry.depth_noise import DepthNoise
+
 __all__ = ["add_depth_holes", "add_depth_noise", "add_label_noise", "blob_mask"]
 
 
@@ -18,10 +20,10 @@ def blob_mask(shape: tuple[int, int], fraction: float, rng: np.random.Generator,
 
 
 def add_depth_noise(depth: np.ndarray, scale: float, rng: np.random.Generator) -> np.ndarray:
-    """Gaussian noise with the Kinect v1 axial model sigma(z) = 1.2 mm + 1.9 mm (z - 0.4)^2, times ``scale``."""
+    """Gaussian noise with the Kinect v1 axial model (:class:`DepthNoise`'s defaults), times ``scale``."""
     if scale <= 0:
         return depth
-    sigma = scale * (0.0012 + 0.0019 * (depth - 0.4) ** 2)
+    sigma = scale * DepthNoise().sigma_m(depth)
     noisy = depth + sigma * rng.standard_normal(depth.shape).astype(np.float32)
     return np.where(depth > 0, np.maximum(noisy, 0.0), 0.0).astype(np.float32)
 

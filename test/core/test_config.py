@@ -76,12 +76,14 @@ def test_range_errors_and_bad_overrides(tmp_path):
 
 
 def test_live_runs_swap_in_the_live_tracker_and_lockstep_runs_keep_the_presets():
-    preset = load_config("tum")
+    preset = load_config("synthetic")
     assert preset.tracking.method == "adam" and preset.for_live().tracking.method == "gauss_newton"
     assert preset.for_live().tracking.adam == preset.tracking.adam  # the rest of the section stays
-    keep = load_config("tum", overrides=["live.tracking_method=null"])
+    keep = load_config("synthetic", overrides=["live.tracking_method=null"])
     assert keep.for_live() is keep
-    assert load_config("tum", overrides=["live.tracking_method=adam"]).for_live().tracking.method == "adam"
+    assert load_config("synthetic", overrides=["live.tracking_method=adam"]).for_live().tracking.method == "adam"
+    tum = load_config("tum")  # Gauss-Newton in lockstep as well: nothing to swap
+    assert tum.tracking.method == "gauss_newton" and tum.for_live() is tum
     with pytest.raises(ConfigError, match=r"live\.tracking_method"):
         load_config("tum", overrides=["live.tracking_method=lbfgs"])
 

@@ -16,6 +16,7 @@ from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry import se3_exp
 from sgs_slam_core.geometry.camera import Intrinsics, vertex_map
+from sgs_slam_core.geometry.depth_noise import DepthNoise
 from sgs_slam_core.geometry.icp import (
     IcpLevel,
     _associate,
@@ -239,16 +240,17 @@ def test_the_compiled_steps_match_the_pytorch_steps():
         pytest.skip(GAUSS_NEWTON.unavailable_reason())
     ref, points, values = _one_level_alignment([0.02, 0.0, -0.01, 0.01, 0.0, 0.02])
     start = torch.eye(4, dtype=torch.float64)
+    noise_weights = DepthNoise().weights(points[:, 2])
     for level, vals in ((icp.IcpLevel(ref.intrinsics, ref.packed[:, :7]), None), (ref, values)):
-        for damping in (1e-4, 10.0):
+        for damping, weights in ((1e-4, None), (10.0, None), (1e-4, noise_weights)):
             s = icp.IcpSettings(max_distance_m=0.2, damping=damping)
             slow = start
             for _ in range(4):
-                slow = icp._gauss_newton_step(slow, points, level, s, vals)
-            fast = icp_steps(start, points, vals, level, s, 4)
+                slow = icp._gauss_newton_step(slow, points, level, s, vals, weights)
+            fast = icp_steps(start, points, vals, weights, level, s, 4)
             assert not torch.allclose(slow, start, atol=1e-4)  # the steps moved the pose
             assert torch.allclose(fast, slow, atol=1e-6), (fast - slow).abs().max()
-    assert torch.equal(icp_steps(start, points, None, ref, s, 0), start)
+    assert torch.equal(icp_steps(start, points, None, None, ref, s, 0), start)
 
 
 def test_the_compiled_step_matches_the_pytorch_reference():
@@ -263,12 +265,13 @@ def test_the_compiled_step_matches_the_pytorch_reference():
     s = icp.IcpSettings(max_distance_m=0.2)
     pose = se3_exp(torch.tensor([0.005, 0.0, 0.0, 0.0, 0.01, 0.0], dtype=torch.float64))
     depth_only = icp.IcpLevel(ref.intrinsics, ref.packed[:, :7])
-    for level, vals in ((depth_only, None), (ref, values)):
-        terms = icp._terms(icp_terms, pose, points, vals, level, s)
-        normal = icp._normal_matrix(pose, points, level, s, vals)
+    noise_weights = DepthNoise().weights(points[:, 2])
+    for level, vals, weights in ((depth_only, None, None), (ref, values, None), (ref, values, noise_weights)):
+        terms = icp._terms(icp_terms, pose, points, vals, weights, level, s)
+        normal = icp._normal_matrix(pose, points, level, s, vals, weights)
         assert torch.allclose(terms[:49].reshape(7, 7), normal, rtol=1e-4, atol=1e-6 * float(normal.abs().max()))
-        a = icp._associate(pose, points, level, s.max_distance_m)
-        cost = icp._truncated_cost(a.residual, a.inliers, points[:, 2] > 0, s)
+        a = icp._associate(pose, points, level, s.max_distance_m, weights)
+        cost = icp._truncated_cost(a.weighted, a.inliers, points[:, 2] > 0, s)
         if vals is not None:
             cost = cost + icp._channel_cost(a, vals, level, s)
         assert a.inliers.sum() > 500 and terms[50] == a.inliers.sum() and terms[52] == (points[:, 2] > 0).sum()

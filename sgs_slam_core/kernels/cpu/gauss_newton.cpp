@@ -6,7 +6,9 @@
 // nearest reference pixel; a geometric correspondence when that pixel's vertex v and normal n are
 // valid and |p - v| < max_distance. Its residual r = (p - v) . n has the row
 //   [n, p x n | r]   (d r / d (rho, phi) for a left perturbation, then r)
-// with the Huber weight w = min(1, huber / |r|). Each of the C channels adds, where the reference
+// with the Huber weight w = min(1, huber / |r|). With depth-noise weights (one per source point) the
+// row and r are first scaled by the point's weight, and the Huber weight and the truncated cost see
+// the scaled r. Each of the C channels adds, where the reference
 // pixel's channels are valid, r_c = I(nearest) + dI/du du + dI/dv dv - I_src (du, dv: the projection's
 // sub-pixel offset) with the row [J, p x J | r_c], J = dI/du fx/z (1, 0, -x/z) + dI/dv fy/z (0, 1, -y/z).
 // The matrix is summed in float32 over blocks of rows (as the reference sums every row in float32),
@@ -16,7 +18,8 @@
 // Returns 53 doubles: the 7x7 matrix sum(w row^T row) (its [6, 6] block is J^T W J, its last column
 // J^T W r), the truncated cost sum(min(r^2, (3 huber)^2)) over geometric correspondences plus the cap
 // for every other source point with depth plus the same for usable channel values (0 cap there),
-// the number of correspondences, their sum of r^2, and the number of source points with depth.
+// the number of correspondences, their sum of r^2 (unscaled, m^2), and the number of source points
+// with depth.
 
 #include <torch/extension.h>
 #include <omp.h>
@@ -76,8 +79,8 @@ inline void cross_row(float* row, float px, float py, float pz) {
 }  // namespace
 
 torch::Tensor gauss_newton_terms(torch::Tensor pose, torch::Tensor points, torch::Tensor values,
-                                 torch::Tensor packed, double fx, double fy, double cx, double cy,
-                                 int64_t width, int64_t height, double max_distance, double huber,
+                                 torch::Tensor weights, torch::Tensor packed, double fx, double fy, double cx,
+                                 double cy, int64_t width, int64_t height, double max_distance, double huber,
                                  int64_t threads) {
   TORCH_CHECK(pose.sizes() == torch::IntArrayRef({4, 4}), "pose must be [4, 4]");
   TORCH_CHECK(points.dim() == 2 && points.size(1) == 3 && points.scalar_type() == torch::kFloat32,
@@ -90,6 +93,9 @@ torch::Tensor gauss_newton_terms(torch::Tensor pose, torch::Tensor points, torch
   TORCH_CHECK(stride == 7 + (c ? 3 * c + 1 : 0) || (c == 0 && stride >= 7), "packed has the wrong column count");
   TORCH_CHECK(c == 0 || (values.size(0) == n && values.scalar_type() == torch::kFloat32),
               "values must be [N, C] float32");
+  const bool weighted = weights.numel() > 0;
+  TORCH_CHECK(!weighted || (weights.numel() == n && weights.scalar_type() == torch::kFloat32),
+              "weights must be [N] float32 or empty");
   const auto pose_f = pose.to(torch::kFloat32).contiguous();  // the reference transforms in float32
   const float* m = pose_f.data_ptr<float>();
   const float r00 = m[0], r01 = m[1], r02 = m[2], t0 = m[3];
@@ -107,6 +113,8 @@ torch::Tensor gauss_newton_terms(torch::Tensor pose, torch::Tensor points, torch
   const float max_d2 = static_cast<float>(max_distance * max_distance);
   const float hub = static_cast<float>(huber);
   const double cap = 9.0 * huber * huber;
+  const auto wts_c = weights.contiguous();
+  const float* wts = weighted ? wts_c.data_ptr<float>() : nullptr;
   const int nthreads = static_cast<int>(std::max<int64_t>(1, threads));
   std::vector<double> partial(static_cast<size_t>(nthreads) * (kUpper + kStats), 0.0);
 
@@ -143,9 +151,11 @@ torch::Tensor gauss_newton_terms(torch::Tensor pose, torch::Tensor points, torch
       const float r = dx * t[3] + dy * t[4] + dz * t[5];
       row[0] = t[3], row[1] = t[4], row[2] = t[5], row[6] = r;
       cross_row(row, px, py, pz);
+      if (weighted)
+        for (float& x : row) x *= wts[i];
       block.push(acc, row, hub);
       const double r2 = static_cast<double>(r) * r;
-      st[0] += std::min(r2, cap);
+      st[0] += std::min(static_cast<double>(row[6]) * row[6], cap);
       st[1] += 1.0;
       st[2] += r2;
       if (c == 0 || !(t[7 + 3 * c] > 0.0f)) continue;
@@ -239,12 +249,12 @@ void left_update(const double xi[6], const double* pose, double* out) {
 // makes them from these terms: (J^T W J + (damping mean(diag) + 1e-12) I) xi = -J^T W r, then
 // pose <- exp(xi) pose. Returns the pose [4, 4] float64.
 torch::Tensor gauss_newton_steps(torch::Tensor pose, torch::Tensor points, torch::Tensor values,
-                                 torch::Tensor packed, double fx, double fy, double cx, double cy,
-                                 int64_t width, int64_t height, double max_distance, double huber,
+                                 torch::Tensor weights, torch::Tensor packed, double fx, double fy, double cx,
+                                 double cy, int64_t width, int64_t height, double max_distance, double huber,
                                  double damping, int64_t steps, int64_t threads) {
   auto current = pose.to(torch::kFloat64).contiguous().clone();
   for (int64_t step = 0; step < steps; ++step) {
-    const auto terms = gauss_newton_terms(current, points, values, packed, fx, fy, cx, cy, width, height,
+    const auto terms = gauss_newton_terms(current, points, values, weights, packed, fx, fy, cx, cy, width, height,
                                           max_distance, huber, threads);
     const double* t = terms.data_ptr<double>();
     double h[6][6], g[6], xi[6];

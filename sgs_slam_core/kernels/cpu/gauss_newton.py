@@ -25,6 +25,7 @@ def icp_terms(
     intrinsics: Intrinsics,  # the reference level's camera
     max_distance_m: float,
     huber_m: float,
+    weights: Tensor | None,  # [N] float32 depth-noise weights of the source points
 ) -> Tensor:  # [53] float64: normal matrix [49], truncated cost, correspondences, their sum r^2, source points
     """The kernel's terms at ``src_to_ref`` (CPU tensors).
 
@@ -32,11 +33,16 @@ def icp_terms(
     thread would spin against the live pipeline's other worker.
     """
     k = intrinsics
-    channels = points.new_zeros((0, 0)) if values is None else values
     camera = (k.fx, k.fy, k.cx, k.cy, k.width, k.height)
     return GAUSS_NEWTON.module().gauss_newton_terms(
-        src_to_ref, points, channels, packed, *camera, max_distance_m, huber_m, 1
+        src_to_ref, points, *_optional(points, values, weights), packed, *camera, max_distance_m, huber_m, 1
     )
+
+
+def _optional(points: Tensor, values: Tensor | None, weights: Tensor | None) -> tuple[Tensor, Tensor]:
+    """The kernel's channel and weight arguments, empty tensors for none."""
+    empty = points.new_zeros((0, 0))
+    return (empty if values is None else values), (empty if weights is None else weights)
 
 
 def icp_level(depth: Tensor, intrinsics: Intrinsics, min_normal_cos: float) -> Tensor:
@@ -49,16 +55,25 @@ def icp_steps(
     src_to_ref: Tensor,  # [4, 4] float64
     points: Tensor,  # [N, 3] float32 source points, z = 0 where invalid
     values: Tensor | None,  # [N, C] float32 source channels
+    weights: Tensor | None,  # [N] float32 depth-noise weights of the source points
     ref: IcpLevel,
     s: IcpSettings,
     steps: int,
 ) -> Tensor:  # [4, 4] float64
     """``steps`` damped Gauss-Newton updates against ``ref`` in one call (CPU tensors, one thread)."""
     k = ref.intrinsics
-    channels = points.new_zeros((0, 0)) if values is None else values
     camera = (k.fx, k.fy, k.cx, k.cy, k.width, k.height)
     return GAUSS_NEWTON.module().gauss_newton_steps(
-        src_to_ref, points, channels, ref.packed, *camera, s.max_distance_m, s.huber_m, s.damping, steps, 1
+        src_to_ref,
+        points,
+        *_optional(points, values, weights),
+        ref.packed,
+        *camera,
+        s.max_distance_m,
+        s.huber_m,
+        s.damping,
+        steps,
+        1,
     )
 
 
