@@ -1,9 +1,9 @@
 """The axial noise of a depth camera, and the weights it gives point-to-plane residuals.
 
 A structured-light or stereo camera measures depth with an error that grows with about the square
-of the depth: a point at 3 m is ten times as uncertain as one at 1 m. Weighting each residual by
-the inverse of its noise lets the near surfaces, which the camera measures well, decide the pose
-instead of the far background's noise.
+of the depth: a Kinect measures a point at 3 m about seven times less precisely than one at 1 m.
+Weighting each residual by the inverse of its noise lets the near surfaces, which the camera
+measures well, decide the pose instead of the far background's noise.
 """
 
 from __future__ import annotations
