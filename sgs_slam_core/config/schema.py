@@ -59,16 +59,22 @@ class SlamConfig:
     }
 
     def for_live(self) -> SlamConfig:
-        """This config as live runs use it: ``live.tracking_method`` / ``live.mapping_every`` replace their settings.
+        """This config as live runs use it: the ``live`` section's replacements applied.
 
-        Either, when null, leaves ``tracking.method`` / ``mapping.every`` as they are.
+        ``live.tracking_method`` / ``live.mapping_every`` replace ``tracking.method`` /
+        ``mapping.every`` (either, when null, leaves its setting as it is);
+        ``live.geometry_lr_scale`` multiplies the mapping's centre and size learning rates.
         """
-        config, method, every = self, self.live.tracking_method, self.live.mapping_every
-        if method is not None and method != config.tracking.method:
-            config = replace(config, tracking=replace(config.tracking, method=method))
-        if every is not None and every != config.mapping.every:
-            config = replace(config, mapping=replace(config.mapping, every=every))
-        return config
+        config, live = self, self.live
+        if live.tracking_method is not None and live.tracking_method != config.tracking.method:
+            config = replace(config, tracking=replace(config.tracking, method=live.tracking_method))
+        mapping = config.mapping
+        if live.mapping_every is not None:
+            mapping = replace(mapping, every=live.mapping_every)
+        if live.geometry_lr_scale != 1.0:
+            scale = live.geometry_lr_scale
+            mapping = replace(mapping, lr_means=mapping.lr_means * scale, lr_scales=mapping.lr_scales * scale)
+        return config if mapping == config.mapping else replace(config, mapping=mapping)
 
     def __post_init__(self) -> None:
         if self.seed < 0:

@@ -539,14 +539,21 @@ class LiveSettings:
             ``mapping.every`` (null: that one); every frame is still densified, and mapping steps
             fill the time between frames either way. Fewer mapping jobs leave the tracker more of
             the machine: more frames tracked, fewer mapping steps.
+        geometry_lr_scale: live runs multiply ``mapping.lr_means`` and ``mapping.lr_scales`` by this
+            (1 = lockstep's rates). Live on a CPU a frame gets a few mapping steps where lockstep
+            makes ``mapping.iterations``; centres and sizes that move further per step can still
+            fit noisy depth in those few (the ``tum`` preset takes 3).
     """
 
     map_turn_fraction: float = 0.01
     preempt_fraction: float = 1 / 3
     tracking_method: TrackerName | None = "gauss_newton"
     mapping_every: int | None = None
+    geometry_lr_scale: float = 1.0
 
     def __post_init__(self) -> None:
+        if not self.geometry_lr_scale > 0:
+            raise ConfigError(f"live.geometry_lr_scale must be > 0, got {self.geometry_lr_scale}")
         if self.mapping_every is not None and self.mapping_every < 1:
             raise ConfigError(f"live.mapping_every must be >= 1 or null, got {self.mapping_every}")
         for name, value in (("map_turn_fraction", self.map_turn_fraction), ("preempt_fraction", self.preempt_fraction)):

@@ -83,7 +83,7 @@ def test_live_runs_swap_in_the_live_tracker_and_lockstep_runs_keep_the_presets()
     assert keep.for_live() is keep
     assert load_config("synthetic", overrides=["live.tracking_method=adam"]).for_live().tracking.method == "adam"
     tum = load_config("tum")  # Gauss-Newton in lockstep as well: nothing to swap
-    assert tum.tracking.method == "gauss_newton" and tum.for_live() is tum
+    assert tum.tracking.method == "gauss_newton" and tum.for_live().tracking == tum.tracking
     with pytest.raises(ConfigError, match=r"live\.tracking_method"):
         load_config("tum", overrides=["live.tracking_method=lbfgs"])
 
@@ -95,3 +95,21 @@ def test_live_runs_may_map_fewer_frames_than_lockstep_runs():
     assert load_config("synthetic").for_live().mapping.every == 1  # null: mapping.every
     with pytest.raises(ConfigError, match=r"live\.mapping_every"):
         load_config("synthetic", overrides=["live.mapping_every=0"])
+
+
+def test_live_runs_move_the_maps_geometry_further_per_step():
+    config = load_config("tum")  # the preset's scale
+    live, lockstep = config.for_live().mapping, config.mapping
+    assert live.lr_means == pytest.approx(3 * lockstep.lr_means)
+    assert live.lr_scales == pytest.approx(3 * lockstep.lr_scales)
+    assert (live.lr_colors, live.lr_opacities, live.iterations) == (
+        lockstep.lr_colors,
+        lockstep.lr_opacities,
+        lockstep.iterations,
+    )
+    same = load_config("tum", overrides=["live.geometry_lr_scale=1"])
+    assert same.for_live().mapping == same.mapping
+    assert load_config("synthetic").for_live().mapping == load_config("synthetic").mapping  # 1 by default
+    for bad in ("0", "-1"):
+        with pytest.raises(ConfigError, match=r"live\.geometry_lr_scale"):
+            load_config("tum", overrides=[f"live.geometry_lr_scale={bad}"])
