@@ -5,7 +5,9 @@ Publishes every topic's raw CDR payloads (no re-serialisation) with the QoS reco
 rate factor, ``--loop``, a start offset, ``--lockstep``, which waits for the SLAM pose of each
 colour frame (by header stamp) before publishing the next one, so a replay drops nothing and is
 deterministic, and ``--reset``, which calls the SLAM nodes' ``~/reset`` first (a second replay's
-stamps would otherwise go backwards and every frame be refused)::
+stamps would otherwise go backwards and every frame be refused). As a camera hands over its images
+ready, the first ``--preload-mb`` MiB of payloads are read and decompressed before the clock starts,
+so reading the bag does not take the machine from the nodes during the replay::
 
     bag_player scene0000_00_bag --lockstep --reset --ros-args -r __ns:=/
 """
@@ -53,6 +55,7 @@ class PlayStats:
     frames: int = 0
     poses_received: int = 0
     lockstep_timeouts: int = 0
+    preloaded: int = 0  # messages read before the clock started
 
 
 def _message_class(type_name: str) -> type:
@@ -92,11 +95,16 @@ class BagPlayer(Node):
         lockstep_timeout_s: float = 60.0,
         clock: bool = False,
         topics: BagTopics = BagTopics(),  # noqa: B008 - immutable default
+        preload_mb: float = 0.0,
         **kwargs: Any,
     ) -> None:
         super().__init__("bag_player", **kwargs)
         if not rate > 0:
             raise ValueError(f"rate must be > 0, got {rate}")
+        if not preload_mb >= 0:
+            raise ValueError(f"preload_mb must be >= 0, got {preload_mb}")
+        self.preload_bytes = round(preload_mb * 2**20)
+        self._preloaded: dict[int, bytes] | None = None  # position in the play order -> payload
         self.file = bag_file(Path(bag))
         self.rate, self.loop, self.start_offset_ns = rate, loop, round(start_offset_s * 1e9)
         self.lockstep, self.lockstep_timeout_s, self.synth_clock = lockstep, lockstep_timeout_s, clock
@@ -120,6 +128,11 @@ class BagPlayer(Node):
         if lockstep:
             self.create_subscription(PoseStamped, pose_topic, self._on_pose, 100)
         self.get_logger().info(f"playing {self.file} ({len(self._pubs)} topics{', lockstep' if lockstep else ''})")
+
+    @property
+    def message_count(self) -> int:
+        """Messages in the bag (every topic)."""
+        return len(self._order)
 
     def _on_pose(self, msg: PoseStamped) -> None:
         with self._pose_cv:
@@ -174,14 +187,32 @@ class BagPlayer(Node):
                 self.destroy_client(client)
         return done
 
-    def _messages(self) -> Iterator[tuple[str, MessageRef]]:
+    def _messages(self) -> Iterator[tuple[int, str, MessageRef]]:
+        """(position in the play order, topic, message) from the start offset on."""
         start = self._order[0].log_time if self._order else 0
-        for ref in self._order:
+        for position, ref in enumerate(self._order):
             if ref.log_time - start >= self.start_offset_ns:
-                yield self._topic[ref.channel_id], ref
+                yield position, self._topic[ref.channel_id], ref
+
+    def preload(self) -> int:
+        """Read the payloads of the first ``preload_mb`` MiB of the replay into memory; how many (once)."""
+        if self._preloaded is None:
+            self._preloaded, held = {}, 0
+            for position, _, ref in self._messages():
+                if held + ref.length > self.preload_bytes or self._stop.is_set():
+                    break
+                self._preloaded[position] = self._index.payload(ref)
+                held += ref.length
+            self.stats.preloaded = len(self._preloaded)
+        return len(self._preloaded)
+
+    def _payload(self, position: int, ref: MessageRef) -> bytes:
+        preloaded = self._preloaded.get(position) if self._preloaded is not None else None
+        return self._index.payload(ref) if preloaded is None else preloaded
 
     def play(self) -> PlayStats:
-        """Replay once (or until stopped with ``loop``); returns counters."""
+        """Replay once (or until stopped with ``loop``); returns counters. Preloads first (see :meth:`preload`)."""
+        self.preload()
         while True:
             self._play_once()
             if not self.loop or self._stop.is_set():
@@ -190,7 +221,7 @@ class BagPlayer(Node):
     def _play_once(self) -> None:
         wall0 = bag0 = None
         pending_frame: int | None = None  # lockstep: the colour frame whose pose we still wait for
-        for topic, ref in self._messages():
+        for position, topic, ref in self._messages():
             log_time = ref.log_time
             if self._stop.is_set():
                 return
@@ -204,7 +235,7 @@ class BagPlayer(Node):
                     return
             if self._clock_pub is not None:
                 self._clock_pub.publish(Clock(clock=rclpy.time.Time(nanoseconds=log_time).to_msg()))
-            self._pubs[topic].publish(self._index.payload(ref))
+            self._pubs[topic].publish(self._payload(position, ref))
             self.stats.messages += 1
             if topic == self.topics.color:
                 self.stats.frames += 1
@@ -234,6 +265,12 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
     p.add_argument("--timeout", type=float, default=60.0, help="seconds to wait for a pose in --lockstep")
     p.add_argument("--clock", action="store_true", help="publish /clock from log times (if the bag has none)")
     p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for subscribers before playing")
+    p.add_argument(
+        "--preload-mb",
+        type=float,
+        default=1024.0,
+        help="MiB of messages read and decompressed before the clock starts (0 = read each when it is due)",
+    )
     p.add_argument(
         "--reset", action="store_true", help=f"call the SLAM's reset services first ({', '.join(RESET_SERVICES)})"
     )
@@ -267,7 +304,15 @@ def main(args: list[str] | None = None) -> int:
     with stop_on_signals(on_signal):
         try:
             player = BagPlayer(
-                opts.bag, opts.rate, opts.loop, opts.start, opts.lockstep, opts.pose_topic, opts.timeout, opts.clock
+                opts.bag,
+                opts.rate,
+                opts.loop,
+                opts.start,
+                opts.lockstep,
+                opts.pose_topic,
+                opts.timeout,
+                opts.clock,
+                preload_mb=opts.preload_mb,
             )
             if stopped.is_set():  # the signal came while the bag was being indexed
                 return 0
@@ -285,6 +330,8 @@ def main(args: list[str] | None = None) -> int:
                 player.get_logger().warn(
                     f"nobody subscribes to {player.topics.color} after {opts.wait:g} s; playing anyway"
                 )
+            if player.preload():
+                player.get_logger().info(f"preloaded {player.stats.preloaded} of {player.message_count} messages")
             stats = player.play()
             player.get_logger().info(
                 f"{'stopped' if stopped.is_set() else 'done'}: {stats.frames} frames, {stats.messages} messages, "

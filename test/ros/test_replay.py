@@ -7,6 +7,7 @@ import sys
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
+from sensor_msgs.msg import Image
 
 from bags.writer import convert
 from msg_adapters import stamp_to_ns
@@ -76,6 +77,33 @@ def test_live_replay_counts_add_up_in_diagnostics(tiny_bag):
         stop(spinner, ctx, [*nodes, player])
 
 
+def test_preload_holds_the_first_messages_of_the_budget_and_play_publishes_them_all(tiny_bag):
+    ctx = new_context()
+    whole = BagPlayer(tiny_bag, preload_mb=1024.0, context=ctx)
+    sizes = [ref.length for _, _, ref in whole._messages()]
+    budget = sum(sizes[:5]) + sizes[5] // 2  # room for five messages and half of the sixth
+    part = BagPlayer(tiny_bag, preload_mb=budget / 2**20, rate=4.0, context=ctx)
+    none = BagPlayer(tiny_bag, context=ctx)
+    received = []
+    part.create_subscription(Image, "/camera/color/image_raw", received.append, 50)
+    spinner = Spinner(ctx, [part])
+    try:
+        assert whole.preload() == whole.message_count == len(sizes)
+        assert part.preload() == 5 and none.preload() == 0
+        assert all(whole._payload(i, ref) == whole._index.payload(ref) for i, _, ref in whole._messages())
+        stats = part.play()
+        assert (stats.frames, stats.messages, stats.preloaded) == (12, len(sizes), 5)
+        assert wait_for(lambda: len(received) == 12, 10.0)  # the preloaded colour frames arrive like the rest
+    finally:
+        shut_down(ctx, [whole, part, none], spinner)
+    ctx = new_context()
+    try:
+        with pytest.raises(ValueError, match="preload_mb"):
+            BagPlayer(tiny_bag, preload_mb=-1.0, context=ctx)
+    finally:
+        ctx.try_shutdown()
+
+
 def test_second_lockstep_replay_after_reset(tiny_bag):
     """The second replay's stamps start again: without a reset every frame would be refused."""
     ctx = new_context()
@@ -107,6 +135,7 @@ def test_second_lockstep_replay_after_reset(tiny_bag):
         assert proc.returncode == 0, proc.stderr
         assert f"reset {', '.join(RESET_SERVICES)} before playing" in proc.stderr
         assert "done: 12 frames" in proc.stderr and "0 timeouts" in proc.stderr, proc.stderr
+        assert "preloaded" in proc.stderr, proc.stderr  # the tiny bag fits the default budget
         assert "terminate called" not in proc.stderr
         assert wait_for(lambda: len(poses) == 24, 10.0)
         assert [stamp_to_ns(p.header.stamp) for p in poses[12:]] == first  # every frame again, in order
