@@ -285,6 +285,21 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def _player(opts: argparse.Namespace) -> BagPlayer:
+    """The player the command line describes."""
+    return BagPlayer(
+        opts.bag,
+        opts.rate,
+        opts.loop,
+        opts.start,
+        opts.lockstep,
+        opts.pose_topic,
+        opts.timeout,
+        opts.clock,
+        preload_mb=opts.preload_mb,
+    )
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``bag_player``; Ctrl-C stops cleanly."""
     argv = list(sys.argv if args is None else args)
@@ -303,17 +318,7 @@ def main(args: list[str] | None = None) -> int:
 
     with stop_on_signals(on_signal):
         try:
-            player = BagPlayer(
-                opts.bag,
-                opts.rate,
-                opts.loop,
-                opts.start,
-                opts.lockstep,
-                opts.pose_topic,
-                opts.timeout,
-                opts.clock,
-                preload_mb=opts.preload_mb,
-            )
+            player = _player(opts)
             if stopped.is_set():  # the signal came while the bag was being indexed
                 return 0
             player.get_logger().info(f"transport: {transport}")
