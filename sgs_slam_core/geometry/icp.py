@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import torch
 import torch.nn.functional as nn_f
@@ -386,26 +386,28 @@ def _huber_weight(r: Tensor, usable: Tensor, huber_m: float) -> Tensor:
     return torch.where(usable, (huber_m / r.abs().clamp_min(1e-12)).clamp(max=1.0), 0.0)
 
 
+class _LevelSource(NamedTuple):
+    """What one pyramid level aligns onto its reference."""
+
+    points: Tensor  # [N, 3] camera frame, z = 0 where invalid
+    values: Tensor | None = None  # [N, C] channels (None: depth alone)
+    weights: Tensor | None = None  # [N] depth-noise weights (None: every point the same)
+
+
 def _gauss_newton_step(
-    src_to_ref: Tensor,  # [4, 4] float64
-    src: Tensor,  # [N, 3]
-    ref: IcpLevel,
-    s: IcpSettings,
-    values: Tensor | None = None,  # [N, C]
-    weights: Tensor | None = None,  # [N] depth-noise weights
-) -> Tensor:  # the updated pose [4, 4]
-    return _solve(_normal_matrix(src_to_ref, src, ref, s, values, weights), src_to_ref, s)
+    src_to_ref: Tensor, source: _LevelSource, ref: IcpLevel, s: IcpSettings
+) -> Tensor:  # src_to_ref [4, 4] float64 -> the updated pose [4, 4]
+    return _solve(_normal_matrix(src_to_ref, source, ref, s), src_to_ref, s)
 
 
 def _normal_matrix(
     src_to_ref: Tensor,  # [4, 4] float64
-    src: Tensor,  # [N, 3]
+    source: _LevelSource,
     ref: IcpLevel,
     s: IcpSettings,
-    values: Tensor | None = None,  # [N, C]
-    weights: Tensor | None = None,  # [N] depth-noise weights
 ) -> Tensor:  # [7, 7] float64: [J^T W J | J^T W r] of the Huber-weighted rows
-    a = _associate(src_to_ref, src, ref, s.max_distance_m, weights)
+    values = source.values
+    a = _associate(src_to_ref, source.points, ref, s.max_distance_m, source.weights)
     p, n, r = a.points, a.target[:, 3:6], a.weighted
     weight = _huber_weight(r, a.inliers, s.huber_m)
     # rows [d r / d (rho, phi) | r] for a left perturbation; one product gives J^T W J and J^T W r
@@ -471,11 +473,10 @@ def align_device(
     """
     kernels = kernels or IcpKernels()
     init = init_src_to_ref.to(device=depth.device, dtype=torch.float64)
-    pose, points, weights = _refine(depth, intrinsics, reference, init, s, channels, kernels)
-    values = None if channels is None else channels[-1]
+    pose, finest = _refine(depth, intrinsics, reference, init, s, channels, kernels)
     if kernels.terms is None:
-        return _keep_better(init, pose, (points, values, weights), reference[-1], s)
-    start, end = (_terms(kernels.terms, p, points, values, weights, reference[-1], s)[49:] for p in (init, pose))
+        return _keep_better(init, pose, finest, reference[-1], s)
+    start, end = (_terms(kernels.terms, p, finest, reference[-1], s)[49:] for p in (init, pose))
     worse = end[0] > start[0]
     stats = torch.where(worse, start, end)
     return DeviceAlignment(torch.where(worse, init, pose), stats[1], stats[2], stats[3])
@@ -507,7 +508,7 @@ def _refine(
     s: IcpSettings,
     channels: Sequence[Tensor | None] | None,
     kernels: IcpKernels,
-) -> tuple[Tensor, Tensor, Tensor | None]:  # the pose [4, 4] float64; the finest level's points [N, 3], weights [N]
+) -> tuple[Tensor, _LevelSource]:  # the pose [4, 4] float64, the finest level's source
     iterations = s.steps_for(intrinsics.width)
     if len(reference) != len(iterations):
         raise ShapeError(f"reference pyramid has {len(reference)} levels, settings ask for {len(iterations)}")
@@ -519,13 +520,13 @@ def _refine(
     for i, (k, src, ref, steps) in enumerate(levels):
         if k.shape != ref.intrinsics.shape:
             raise ShapeError(f"source level is {k.shape}, reference level {ref.intrinsics.shape}")
-        values = None if channels is None else channels[i]
+        source = _LevelSource(src, None if channels is None else channels[i], weights[i])
         if kernels.steps is not None:
-            pose = kernels.steps(pose, src, values, weights[i], ref, s, steps)
+            pose = kernels.steps(pose, *source, ref, s, steps)
             continue
         for _ in range(steps):
-            pose = _gauss_newton_step(pose, src, ref, s, values, weights[i])
-    return pose, points[-1], weights[-1]
+            pose = _gauss_newton_step(pose, source, ref, s)
+    return pose, source
 
 
 def _noise_weights(points: list[Tensor], noise: DepthNoise | None) -> list[Tensor | None]:  # per level [N]
@@ -534,21 +535,16 @@ def _noise_weights(points: list[Tensor], noise: DepthNoise | None) -> list[Tenso
 
 
 def _terms(
-    terms: IcpTerms,
-    pose: Tensor,  # [4, 4] float64
-    points: Tensor,  # [N, 3]
-    values: Tensor | None,  # [N, C]
-    weights: Tensor | None,  # [N]
-    ref: IcpLevel,
-    s: IcpSettings,
-) -> Tensor:  # [53] float64
+    terms: IcpTerms, pose: Tensor, source: _LevelSource, ref: IcpLevel, s: IcpSettings
+) -> Tensor:  # pose [4, 4] float64 -> [53] float64
+    points, values, weights = source
     return terms(pose, points, values, ref.packed, ref.intrinsics, s.max_distance_m, s.huber_m, weights)
 
 
 def _keep_better(
     init: Tensor,  # [4, 4] float64
     pose: Tensor,  # [4, 4] float64
-    source: tuple[Tensor, Tensor | None, Tensor | None],  # the finest level's points [N, 3], values [N, C], weights [N]
+    source: _LevelSource,  # the finest level's
     ref: IcpLevel,
     s: IcpSettings,
 ) -> DeviceAlignment:

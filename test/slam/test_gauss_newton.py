@@ -246,7 +246,7 @@ def test_the_compiled_steps_match_the_pytorch_steps():
             s = icp.IcpSettings(max_distance_m=0.2, damping=damping)
             slow = start
             for _ in range(4):
-                slow = icp._gauss_newton_step(slow, points, level, s, vals, weights)
+                slow = icp._gauss_newton_step(slow, icp._LevelSource(points, vals, weights), level, s)
             fast = icp_steps(start, points, vals, weights, level, s, 4)
             assert not torch.allclose(slow, start, atol=1e-4)  # the steps moved the pose
             assert torch.allclose(fast, slow, atol=1e-6), (fast - slow).abs().max()
@@ -267,8 +267,8 @@ def test_the_compiled_step_matches_the_pytorch_reference():
     depth_only = icp.IcpLevel(ref.intrinsics, ref.packed[:, :7])
     noise_weights = DepthNoise().weights(points[:, 2])
     for level, vals, weights in ((depth_only, None, None), (ref, values, None), (ref, values, noise_weights)):
-        terms = icp._terms(icp_terms, pose, points, vals, weights, level, s)
-        normal = icp._normal_matrix(pose, points, level, s, vals, weights)
+        terms = icp._terms(icp_terms, pose, icp._LevelSource(points, vals, weights), level, s)
+        normal = icp._normal_matrix(pose, icp._LevelSource(points, vals, weights), level, s)
         assert torch.allclose(terms[:49].reshape(7, 7), normal, rtol=1e-4, atol=1e-6 * float(normal.abs().max()))
         a = icp._associate(pose, points, level, s.max_distance_m, weights)
         cost = icp._truncated_cost(a.weighted, a.inliers, points[:, 2] > 0, s)
