@@ -322,6 +322,7 @@ class MappingNode(Node):
             "processing_rate_hz": f"{self.mapped_rate.rate():.2f}",
             "frames_mapped": str(st.mapped),
             "jobs_dropped": str(st.dropped_jobs),
+            "mapping_steps_per_frame": f"{st.map_steps_per_frame:.1f}",
             **footprint(self.pipeline.slam).as_strings(),  # Gaussians, keyframes held, and their bytes
             "tracking_failures": str(st.tracking_failures),
             "locked_classes": " ".join(str(i) for i in sorted(self.pipeline.slam.locked_labels)) or "none",

@@ -101,6 +101,12 @@ TRACKING = (
     ),
     ParamSpec("path_max_length", 10000, "poses kept in ~/path", bounds=(1, 1000000)),
     ParamSpec(
+        "path_rate_hz",
+        1.0,
+        "max rate of ~/path (after a new pose; 0 = off): each publication carries the whole path",
+        bounds=(0.0, 60.0),
+    ),
+    ParamSpec(
         "map_alignment",
         MapAlignment.FLOOR.value,
         "map frame: 'floor' (z up, levelled on the first frame's floor, origin on the floor; 'mount' if "

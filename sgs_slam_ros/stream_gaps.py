@@ -9,11 +9,10 @@ it), or given (``period_ns``). Nothing here knows about ROS: stamps are integers
 
 from __future__ import annotations
 
+import bisect
 import threading
 from collections import deque
 from dataclasses import dataclass
-
-import numpy as np
 
 __all__ = ["GapReport", "StreamGaps"]
 
@@ -43,7 +42,10 @@ class StreamGaps:
         self.fixed_period_ns = period_ns
         self.lost = 0  # frames missing so far
         self.received = 0  # stamps seen
-        self._diffs: deque[int] = deque(maxlen=_WINDOW)
+        self._diffs: deque[int] = deque(maxlen=_WINDOW)  # in arrival order
+        # the same differences in ascending order, kept sorted per stamp: the estimate runs on every
+        # message of every camera topic, on the executor's thread, where np.quantile's call costs more
+        self._sorted: list[int] = []
         self._unjudged: list[int] = []  # differences seen before the period was known
         self._last: int | None = None
         self._lock = threading.Lock()
@@ -53,9 +55,9 @@ class StreamGaps:
         """The stream's period: the given one, else the estimate (None until enough stamps arrived)."""
         if self.fixed_period_ns is not None:
             return self.fixed_period_ns
-        if len(self._diffs) < _MIN_DIFFS:
+        if len(self._sorted) < _MIN_DIFFS:
             return None
-        return int(np.quantile(np.fromiter(self._diffs, dtype=np.int64), _QUANTILE))
+        return int(_low_quantile(self._sorted, _QUANTILE))
 
     def add(self, stamp_ns: int) -> GapReport | None:
         """A stamp arrived; returns the gap it closes when frames are missing before it."""
@@ -65,7 +67,10 @@ class StreamGaps:
             if last is None or stamp_ns <= last:
                 return None
             diff = stamp_ns - last
+            if len(self._diffs) == _WINDOW:  # the oldest difference leaves the window
+                del self._sorted[bisect.bisect_left(self._sorted, self._diffs[0])]
             self._diffs.append(diff)
+            bisect.insort(self._sorted, diff)
             period = self.period_ns
             if period is None:
                 self._unjudged.append(diff)
@@ -80,6 +85,14 @@ class StreamGaps:
         with self._lock:
             self._last = None
             self._unjudged.clear()
+
+
+def _low_quantile(ascending: list[int], q: float) -> float:
+    """The ``q`` quantile of sorted values, interpolated linearly as ``np.quantile``'s default does."""
+    position = q * (len(ascending) - 1)
+    below = int(position)
+    above = min(below + 1, len(ascending) - 1)
+    return ascending[below] + (ascending[above] - ascending[below]) * (position - below)
 
 
 def _missing(diff_ns: int, period_ns: int) -> int:

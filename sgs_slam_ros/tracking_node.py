@@ -40,6 +40,7 @@ from sgs_slam_ros.params import COMMON, TRACKING, ParameterError, declare, slam_
 from sgs_slam_ros.qos import latched_qos, output_qos
 from sgs_slam_ros.runtime import run_nodes
 from sgs_slam_ros.tf import TfFrames, TfPublisher
+from sgs_slam_ros.timers import Throttled
 
 __all__ = ["TrackingNode", "main"]
 
@@ -98,6 +99,10 @@ class TrackingNode(Node):
         )
         self.path: list[PoseStamped] = []
         self._path_lock = threading.Lock()
+        # on the executor at a bounded rate, not per pose on the tracking thread: a Path costs time
+        # linear in its length to publish, and a live run's path grows by the camera's rate
+        self.path_out = Throttled(self, self.params["path_rate_hz"], self._publish_path)
+        self.params.on_change["path_rate_hz"] = self.path_out.set_rate
         self.create_service(Trigger, "~/reset", self._reset)
         self.diagnostics = Diagnostics(self, self._status)
         mode = "lockstep" if self.params["lockstep"] else "live"
@@ -212,10 +217,18 @@ class TrackingNode(Node):
         with self._path_lock:
             self.path.append(msg)
             del self.path[: -self.params["path_max_length"]]
-            path = list(self.path)
-        self.path_pub.publish(path_msg(path, outcome.stamp_ns, self.map_frame))
+        self.path_out.mark()
         if outcome.failed:
             self.get_logger().warn(f"tracking failure at stamp {outcome.stamp_ns}: {outcome.failure_reason}")
+
+    def _publish_path(self) -> bool:
+        """Publish ~/path (the kept poses, stamped as the newest); False when it is empty."""
+        with self._path_lock:
+            path = list(self.path)
+        if not path:
+            return False
+        self.path_pub.publish(path_msg(path, stamp_to_ns(path[-1].header.stamp), self.map_frame))
+        return True
 
     def _reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success = self.pipeline.reset()
@@ -264,8 +277,12 @@ class TrackingNode(Node):
     def close(self) -> None:
         """Stop the workers (this node owns the pipeline) and log the run's frame counts."""
         self.pipeline.shutdown()
-        counts = self.camera.counts(self.pipeline.stats.dropped_frames)
-        counts["frames_tracked"] = str(self.pipeline.stats.tracked)
+        st = self.pipeline.stats
+        counts = self.camera.counts(st.dropped_frames)
+        counts["frames_tracked"] = str(st.tracked)
+        if self.pipeline.map_enabled:  # slam_node: this process maps too
+            counts["frames_mapped"] = str(st.mapped)
+            counts["mapping_steps_per_frame"] = f"{st.map_steps_per_frame:.1f}"
         self.get_logger().info("final counts: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
 
 

@@ -96,9 +96,15 @@ class PipelineStats:
     tracking_failures: int = 0  # tracked, but flagged by the failure guard (not mapped)
     tracking_errors: int = 0  # rejected by tracking (bad frame) or failed: no pose
     mapping_errors: int = 0
+    map_steps: int = 0  # optimisation steps of the mapping jobs that published a map
     errors: int = 0  # tracking_errors + mapping_errors + listeners that raised
     last_error: str = ""
     latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=50))  # arrival -> pose (s)
+
+    @property
+    def map_steps_per_frame(self) -> float:
+        """Mean mapping steps per mapped frame (live: what the time between frames allowed)."""
+        return self.map_steps / max(self.mapped, 1)
 
 
 class SlamPipeline:
@@ -259,6 +265,7 @@ class SlamPipeline:
             with self._cv:
                 self._busy["map"] = False
                 self.stats.mapped += int(result is not None)
+                self.stats.map_steps += result.stats.iterations if result is not None and result.stats else 0
                 self._cv.notify_all()
             if result is not None and tracked is not None:
                 self._notify("publishing the map", self.map_listeners, job.frame, tracked, result)

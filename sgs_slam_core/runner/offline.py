@@ -183,6 +183,8 @@ def _write_outputs(out: Path, slam: Slam, loop: _Loop) -> None:
 def _timing(loop: _Loop) -> dict[str, Any]:
     """Speed and frame counts: lockstep processes every frame; realtime reports what it kept up with."""
     frames, live = len(loop.frame_indices), loop.live
+    mapped = [s for s in loop.steps if s.map.stats is not None]
+    map_steps = sum(s.map.stats.iterations for s in mapped if s.map.stats is not None) / max(len(mapped), 1)
     if live is None:
         return {
             "fps": frames / max(loop.track_s + loop.map_s, 1e-9),
@@ -192,10 +194,10 @@ def _timing(loop: _Loop) -> dict[str, Any]:
             "frames_in": frames + loop.bad_frames,
             "frames_tracked": frames,
             "frames_dropped": 0,
-            "frames_mapped": sum(s.map.stats is not None for s in loop.steps),
+            "frames_mapped": len(mapped),
+            "map_steps_per_frame": map_steps,
             "realtime_hz": None,
         }
-    mapped = [s for s in loop.steps if s.map.stats is not None]
     return {
         "fps": frames / max(live.wall_s, 1e-9),
         "track_ms_per_frame": 1e3 * loop.track_s / frames,
@@ -204,6 +206,7 @@ def _timing(loop: _Loop) -> dict[str, Any]:
         "frames_tracked": live.frames_tracked,
         "frames_dropped": live.frames_dropped,
         "frames_mapped": live.frames_mapped,
+        "map_steps_per_frame": map_steps,
         "realtime_hz": live.realtime_hz,
         "late_frames": live.late_frames,
         "preloaded_frames": live.preloaded_frames,

@@ -43,6 +43,7 @@ def test_run_writes_the_documented_outputs(run_dir, capsys):
     metrics = json.loads((run_dir / "metrics.json").read_text())
     assert all(k in metrics for k in KEYS)
     assert metrics["frames"] == 8 and metrics["ate_rmse_m"] < 0.02 and metrics["psnr_db"] > 25
+    assert metrics["map_steps_per_frame"] == 15  # lockstep: every mapped frame gets mapping.iterations
     assert metrics["lpips"] is None and "LPIPS" in metrics["lpips_note"]
     stamps, poses = read_tum_trajectory(run_dir / "trajectory.txt")
     assert len(stamps) == 8 and poses.shape == (8, 4, 4)

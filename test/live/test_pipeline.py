@@ -18,7 +18,8 @@ from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.live import SlamPipeline
 from sgs_slam_core.metrics import read_tum_trajectory
 from sgs_slam_core.runner.realtime import RealtimeOptions, _Replay, release_times, run_realtime
-from sgs_slam_core.slam.system import Slam, TrackOutcome
+from sgs_slam_core.slam.mapper import MapStats
+from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
 
 from ..conftest import FAST_SLAM
 
@@ -44,7 +45,7 @@ class GatedSlam:
 
     def map(self, frame, tracked, between_iterations=None, before_publish=None):
         self.num_gaussians += 1
-        return SimpleNamespace()
+        return MapOutcome.not_mapped()
 
 
 class TimedSlam(GatedSlam):
@@ -80,7 +81,7 @@ class TimedSlam(GatedSlam):
             steps += 1
         self.job_steps.append(steps)
         self.job_now = False
-        return SimpleNamespace()
+        return MapOutcome(MapStats(steps, 0, 0.0, 0.0), None, False, 0, 0.0)
 
 
 def test_frames_arriving_while_tracking_is_busy_replace_the_waiting_one():
@@ -132,6 +133,8 @@ def test_live_on_the_cpu_a_tracked_frames_job_makes_its_turn_then_ends_for_the_n
         assert slam.job_steps[:-1] == [steps] * (len(slam.job_steps) - 1) and len(slam.job_steps) >= 2
         assert slam.job_steps[-1] == 20  # nothing waits after the last frame: its job runs to the end
         assert pipeline.stats.dropped_jobs == 0
+        assert pipeline.stats.map_steps == sum(slam.job_steps)  # what /diagnostics reports per frame
+        assert pipeline.stats.map_steps_per_frame == sum(slam.job_steps) / len(slam.job_steps)
     finally:
         pipeline.shutdown()
 
@@ -199,7 +202,7 @@ class SlowMappingSlam(GatedSlam):
                 break
             self.steps += 1
             time.sleep(0.01)
-        return SimpleNamespace()
+        return MapOutcome(MapStats(self.steps, 0, 0.0, 0.0), None, False, 0, 0.0)
 
 
 @pytest.mark.parametrize("lockstep", [False, True])
@@ -339,6 +342,7 @@ def test_cli_realtime_writes_the_counts(tiny_scene, tmp_path):
     assert metrics["frames_in"] == 12 and metrics["realtime_hz"] == pytest.approx(20.0)
     assert metrics["preloaded_frames"] == 12
     assert metrics["frames_tracked"] + metrics["frames_dropped"] == 12
+    assert 1 <= metrics["map_steps_per_frame"] <= 15  # mapping.iterations=15 at most, live gives fewer
     stamps, _ = read_tum_trajectory(out / "trajectory.txt")
     assert len(stamps) == metrics["frames_tracked"] == metrics["frames"]
     assert load_config(path=out / "config.yaml").tracking.method == "gauss_newton"  # the live tracker, recorded

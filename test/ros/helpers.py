@@ -36,6 +36,7 @@ def node_params(**extra: object) -> list[Parameter]:
         "input_qos": "reliable_all",
         "render_rate_hz": 2.0,
         "points_rate_hz": 2.0,
+        "path_rate_hz": 10.0,
         "gaussians_rate_hz": 0.0,
     } | extra
     return [Parameter(k, value=v) for k, v in values.items()]

@@ -93,6 +93,14 @@ def test_live_parameters_apply_and_read_only_ones_refuse(system, tiny_scene):
     assert set_params(tracker, depth_scale=1000.0) == [(True, "")]
     play(frames[3:5])
     assert len(tracking.path) == 2
+    # the path off at runtime: poses are still kept but not published; on again: published once
+    assert set_params(tracker, path_rate_hz=0.0) == [(True, "")]
+    sent = tracking.path_out.count
+    play(frames[5:7])
+    assert not wait_for(lambda: tracking.path_out.count > sent, 1.0)
+    assert set_params(tracker, path_rate_hz=20.0) == [(True, "")]
+    assert wait_for(lambda: tracking.path_out.count == sent + 1, 5.0)
+    assert not wait_for(lambda: tracking.path_out.count > sent + 1, 0.5)  # no re-sends without a new pose
     # refusals name the reason
     ((ok, why),) = set_params(tracker, preset="replica")
     assert not ok and "read-only" in why

@@ -69,3 +69,17 @@ def test_activity_busy_and_rate():
     idle[0] = True
     assert 10.0 < activity.rate_hz() < 60.0
     assert activity.idle_since() >= activity.started and activity.busy_s() == 0.0
+
+
+def test_period_estimate_equals_numpys_quantile_of_the_window():
+    rng = np.random.default_rng(2)
+    stamps = np.cumsum(rng.choice([PERIOD, 2 * PERIOD, 3 * PERIOD], 500, p=[0.7, 0.2, 0.1]))
+    stamps += rng.integers(-3_000_000, 3_000_000, 500)
+    gaps = StreamGaps()
+    for i, stamp in enumerate(stamps):
+        gaps.add(int(stamp))
+        window = np.diff(stamps[: i + 1])[-64:]
+        if len(window) >= 8:
+            assert abs(gaps.period_ns - np.quantile(window, 0.2)) <= 1  # int() of the same value
+        else:
+            assert gaps.period_ns is None
