@@ -34,6 +34,7 @@ from sgs_slam_ros.stream_gaps import StreamGaps
 REMAPS = ("rgb/image:=/camera/color/image_raw", "depth/image:=/camera/depth/image_raw",
           "rgb/camera_info:=/camera/color/camera_info", "semantic/image:=/camera/semantic/image_raw")  # fmt: skip
 _COUNT = re.compile(r"(frames_\w+) (\d+)")
+_STEPS = re.compile(r"mapping_steps_per_frame ([\d.]+)")
 
 
 def recorded_gaps(bag: Path) -> int:
@@ -58,7 +59,7 @@ def replay(
     params: tuple[str, ...] = (),
     domain: int | None = None,
     before_play: Callable[[], None] | None = None,
-) -> dict[str, int]:
+) -> dict[str, float]:
     """One replay on DDS domain ``domain`` (default: a random one); the node's final counts and the frames sent.
 
     ``params``: more ``NAME:=VALUE`` parameters of the node; ``before_play`` is called once the node
@@ -106,8 +107,11 @@ def replay(
     sent = re.search(r"done: (\d+) frames", player.stderr)
     if not final or sent is None:
         raise RuntimeError(f"no counts: player {player.stderr[-500:]} node {log[-1500:]}")
-    counts = {k: int(v) for k, v in _COUNT.findall(final[-1])}
+    counts: dict[str, float] = {k: int(v) for k, v in _COUNT.findall(final[-1])}
     counts["sent"] = int(sent.group(1))
+    steps = _STEPS.search(final[-1])
+    if steps is not None:
+        counts["mapping_steps_per_frame"] = float(steps.group(1))
     return counts
 
 

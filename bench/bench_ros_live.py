@@ -47,6 +47,7 @@ class Outcome:
     frames_in: int
     tracked: int
     ate_cm: float | None
+    map_steps: float | None  # mapping steps per mapped frame
 
     @property
     def fraction(self) -> float:
@@ -54,7 +55,8 @@ class Outcome:
 
     def row(self) -> list[object]:
         ate_text = "n/a" if self.ate_cm is None else f"{self.ate_cm:.2f}"
-        return [self.name, self.frames_in, self.tracked, f"{100 * self.fraction:.0f} %", ate_text]
+        steps = "n/a" if self.map_steps is None else f"{self.map_steps:.1f}"
+        return [self.name, self.frames_in, self.tracked, f"{100 * self.fraction:.0f} %", ate_text, steps]
 
 
 def bag_of(source: Path, work: Path, compress: str) -> Path:
@@ -80,7 +82,8 @@ def cli_run(source: Path, out: Path, args: argparse.Namespace, realtime: bool) -
     m = json.loads((out / "metrics.json").read_text())
     ate_m = m.get("ate_rmse_m")
     name = "sgs-slam run --realtime" if realtime else "sgs-slam run (lockstep)"
-    return Outcome(name, m["frames_in"], m["frames_tracked"], None if ate_m is None else 100 * ate_m)
+    ate_cm = None if ate_m is None else 100 * ate_m
+    return Outcome(name, m["frames_in"], m["frames_tracked"], ate_cm, m.get("map_steps_per_frame"))
 
 
 def ros_run(bag: Path, args: argparse.Namespace) -> Outcome:
@@ -104,7 +107,8 @@ def ros_run(bag: Path, args: argparse.Namespace) -> Outcome:
     ate_cm = (
         100 * ate(np.stack([p for p, _ in pairs]), np.stack([g for _, g in pairs])).rmse if len(pairs) > 2 else None
     )
-    return Outcome("bag_player -> slam_node", counts["frames_in"], len(poses), ate_cm)
+    steps = counts.get("mapping_steps_per_frame")
+    return Outcome("bag_player -> slam_node", int(counts["frames_in"]), len(poses), ate_cm, steps)
 
 
 def summary(lockstep: Outcome | None, realtime: list[Outcome], ros: list[Outcome]) -> str:
@@ -163,7 +167,7 @@ def main() -> int:
         r.row()
         for r in ([lockstep] if lockstep else []) + [x for pair in zip(realtime, ros, strict=True) for x in pair]
     ]
-    table = markdown_table(["run", "frames in", "tracked", "tracked %", "ATE cm"], rows)
+    table = markdown_table(["run", "frames in", "tracked", "tracked %", "ATE cm", "mapping steps/frame"], rows)
     text = f"{table}\n\n{summary(lockstep, realtime, ros)}"
     print(text)
     if not args.no_append:
