@@ -235,9 +235,9 @@ class SlamPipeline:
                     self.stats.latency_s.append(time.monotonic() - received_at)
                 self._cv.notify_all()
             if outcome is not None:  # still busy: a reset or an exclusive section waits for the hand-over
-                self._notify("publishing a pose", self.pose_listeners, frame, outcome)
-                if self.map_enabled:
+                if self.map_enabled:  # first: the mapping starts while the pose is published
                     self.submit_job(MapJob(frame, outcome))
+                self._notify("publishing a pose", self.pose_listeners, frame, outcome)
             with self._cv:
                 self._busy["track"] = False
                 self._cv.notify_all()

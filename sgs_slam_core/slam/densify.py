@@ -60,7 +60,27 @@ def densify_mask(out: RenderOutput, frame: FrameTensors, s: DensifySettings) -> 
 
 
 def shallowest(depth: Tensor, window: int) -> Tensor:  # [H, W] -> [H, W]
-    """The least depth within a ``window`` x ``window`` neighbourhood of each pixel (odd window)."""
+    """The least depth within a ``window`` x ``window`` neighbourhood of each pixel (odd window).
+
+    The minimum of shifted copies, rows then columns: the values of a min-pool
+    (:func:`shallowest_reference`) without ``max_pool2d``'s slow CPU kernel, on every densified frame.
+    """
+    r = window // 2
+    if r == 0:
+        return depth
+    h, w = depth.shape
+    padded = torch.nn.functional.pad(depth[None], (r, r, r, r), value=math.inf)[0]  # [H + 2r, W + 2r]
+    rows = padded[:, :w]
+    for i in range(1, 2 * r + 1):
+        rows = torch.minimum(rows, padded[:, i : i + w])
+    out = rows[:h]
+    for j in range(1, 2 * r + 1):
+        out = torch.minimum(out, rows[j : j + h])
+    return out
+
+
+def shallowest_reference(depth: Tensor, window: int) -> Tensor:  # [H, W] -> [H, W]
+    """:func:`shallowest` as a min-pool (the reference its tests compare with)."""
     return -torch.nn.functional.max_pool2d(-depth[None, None], window, stride=1, padding=window // 2)[0, 0]
 
 

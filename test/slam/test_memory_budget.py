@@ -270,6 +270,16 @@ def test_front_window_tells_a_mapped_edge_from_new_geometry_in_front():
             DensifySettings(**bad)
 
 
+@pytest.mark.parametrize("window", [1, 3, 5, 9])
+def test_shallowest_equals_the_min_pool_reference(window):
+    from sgs_slam_core.slam.densify import shallowest, shallowest_reference
+
+    depth = torch.rand(37, 53, generator=torch.Generator().manual_seed(window)) * 4.0
+    depth[3, 4], depth[20, 52], depth[0, 0] = float("nan"), float("inf"), 0.0  # rendered depth can hold these
+    got, want = shallowest(depth, window), shallowest_reference(depth, window)
+    assert torch.equal(got.isnan(), want.isnan()) and torch.equal(got.nan_to_num(), want.nan_to_num())
+
+
 def test_a_mapped_edge_adds_gaussians_except_on_a_revisit():
     from sgs_slam_core.frame import Frame
     from sgs_slam_core.slam.densify import densify_frame
