@@ -102,11 +102,15 @@ def replay(
     )
     time.sleep(3.0)  # the last frames' callbacks
     node.send_signal(signal.SIGINT)
-    log = node.communicate(timeout=300)[0]
-    final = [line for line in log.splitlines() if "final counts:" in line]
-    sent = re.search(r"done: (\d+) frames", player.stderr)
+    return _final_counts(node.communicate(timeout=300)[0], player.stderr)
+
+
+def _final_counts(node_log: str, player_log: str) -> dict[str, float]:
+    """The node's last log line's counts (and mapping steps a frame), and the frames the player sent."""
+    final = [line for line in node_log.splitlines() if "final counts:" in line]
+    sent = re.search(r"done: (\d+) frames", player_log)
     if not final or sent is None:
-        raise RuntimeError(f"no counts: player {player.stderr[-500:]} node {log[-1500:]}")
+        raise RuntimeError(f"no counts: player {player_log[-500:]} node {node_log[-1500:]}")
     counts: dict[str, float] = {k: int(v) for k, v in _COUNT.findall(final[-1])}
     counts["sent"] = int(sent.group(1))
     steps = _STEPS.search(final[-1])

@@ -11,15 +11,19 @@ signal exits at once, without waiting for the workers.
 Before ``rclpy.init`` the process's DDS transport is chosen (``--transport shm|default`` before
 ``--ros-args``; shm by default: see :mod:`sgs_slam_ros.transport`).
 
-The nodes are spun by one single-threaded executor: their callbacks only hand work to the SLAM
-pipeline's threads, and rclpy's multi-threaded executor spends so much time in Python between
-callbacks that, holding the GIL, it starves those threads of it: tracking falls far behind the
-camera.
+The nodes are spun by one executor thread: their callbacks only hand work to the SLAM pipeline's
+threads, and rclpy's multi-threaded executor spends so much time in Python between callbacks that,
+holding the GIL, it starves those threads of it: tracking falls far behind the camera. That thread
+is rclpy's events executor by default (``--executor events|single`` before ``--ros-args``): it
+waits for the middleware's events in C++ where the single-threaded executor rebuilds its wait set in
+Python for every message, time that live mapping on a small CPU is short of. It is still in rclpy's
+``experimental`` module; ``--executor single`` is the fallback.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import sys
@@ -28,8 +32,9 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 
 import rclpy
+from rclpy.context import Context
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
@@ -37,12 +42,13 @@ from rclpy.utilities import remove_ros_args
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_ros.transport import TRANSPORTS, apply_transport
 
-__all__ = ["USER_ERRORS", "run_nodes", "stop_on_signals"]
+__all__ = ["EXECUTORS", "USER_ERRORS", "make_executor", "run_nodes", "stop_on_signals"]
 
 # what a user's command line can cause while the nodes are built
 USER_ERRORS = (ValueError, SgsSlamError, ParameterException)
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 POLL_S = 0.1  # how long the spin loop waits for work before it looks at the stop flag again
+EXECUTORS = ("events", "single")
 
 
 @contextmanager
@@ -78,8 +84,8 @@ def _fail(argv: Sequence[str], err: BaseException) -> int:
     return 1
 
 
-def _transport(argv: Sequence[str]) -> str:
-    """Apply the ``--transport`` option among the non-ROS arguments; returns what was done, in words."""
+def _options(argv: Sequence[str]) -> argparse.Namespace:
+    """The non-ROS arguments: ``--transport`` and ``--executor``."""
     prog = os.path.basename(argv[0]) if argv else "sgs_slam_ros"
     parser = argparse.ArgumentParser(prog=prog)
     parser.add_argument(
@@ -88,24 +94,44 @@ def _transport(argv: Sequence[str]) -> str:
         default="shm",
         help="DDS transport: shm (whole frames through shared memory) or default",
     )
-    return apply_transport(parser.parse_args(remove_ros_args(list(argv))[1:]).transport)
+    parser.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        default="events",
+        help="events: rclpy's events executor (experimental in rclpy); single: its single-threaded one",
+    )
+    return parser.parse_args(remove_ros_args(list(argv))[1:])
+
+
+def make_executor(name: str, context: Context | None = None) -> Executor:
+    """The executor ``name`` (one of :data:`EXECUTORS`) on ``context`` (default: rclpy's, once initialised)."""
+    if name == "events":
+        from rclpy.experimental import EventsExecutor  # noqa: PLC0415 - experimental: only when chosen
+
+        # it enables faulthandler on sys.stderr, which must then be a real file (not pytest's capture)
+        with contextlib.redirect_stderr(sys.__stderr__ or sys.stderr):
+            return EventsExecutor(context=context)
+    if name == "single":
+        return SingleThreadedExecutor(context=context)
+    raise ValueError(f"executor must be one of {', '.join(EXECUTORS)}, got {name!r}")
 
 
 def run_nodes(build: Callable[[], Sequence[Node]], args: Sequence[str] | None = None) -> int:
     """Create the nodes with ``build`` and spin them until Ctrl-C or shutdown; returns the exit code."""
     argv = list(args) if args is not None else list(sys.argv)
     try:
-        transport = _transport(argv)
+        options = _options(argv)
+        transport = apply_transport(options.transport)
         rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except RuntimeError as err:  # rclpy's RCLError: an unparsable --ros-args rule
         return _fail(argv, err)
     nodes: Sequence[Node] = ()
-    executor = SingleThreadedExecutor()
+    executor = make_executor(options.executor)
     stop = threading.Event()
     with stop_on_signals(stop.set):
         try:
             nodes = build()
-            nodes[0].get_logger().info(f"transport: {transport}")
+            nodes[0].get_logger().info(f"transport: {transport}; executor: {options.executor}")
             for node in nodes:
                 executor.add_node(node)
             while not stop.is_set() and rclpy.ok():
