@@ -26,6 +26,7 @@ from rclpy.context import Context
 from rclpy.signals import SignalHandlerOptions
 
 from bench.common import append_section, markdown_table
+from msg_adapters import stamp_to_ns
 from sgs_slam_ros.messages import path_msg, pose_msg
 from sgs_slam_ros.params import TRACKING
 
@@ -47,7 +48,7 @@ def publish_ms(lengths: list[int], repeats: int) -> dict[int, float]:
             times = []
             for _ in range(repeats):
                 t0 = time.perf_counter()
-                pub.publish(path_msg(poses[:n], poses[n - 1].header.stamp.sec * 10**9, "map"))
+                pub.publish(path_msg(poses[:n], stamp_to_ns(poses[n - 1].header.stamp), "map"))
                 times.append(time.perf_counter() - t0)
             out[n] = 1e3 * float(np.median(times))
         return out

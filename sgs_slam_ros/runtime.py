@@ -23,13 +23,12 @@ Python for every message, time that live mapping on a small CPU is short of. It 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, redirect_stderr
 
 import rclpy
 from rclpy.context import Context
@@ -109,7 +108,7 @@ def make_executor(name: str, context: Context | None = None) -> Executor:
         from rclpy.experimental import EventsExecutor  # noqa: PLC0415 - experimental: only when chosen
 
         # it enables faulthandler on sys.stderr, which must then be a real file (not pytest's capture)
-        with contextlib.redirect_stderr(sys.__stderr__ or sys.stderr):
+        with redirect_stderr(sys.__stderr__ or sys.stderr):
             return EventsExecutor(context=context)
     if name == "single":
         return SingleThreadedExecutor(context=context)
