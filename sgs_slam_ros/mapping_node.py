@@ -227,6 +227,7 @@ class MappingNode(Node):
         path = FilePath(self.params["map_path"])
         try:
             with self.pipeline.exclusive():
+                self.pipeline.slam.refresh_labels()  # live: the classes are re-decoded at keyframes only
                 m = self.pipeline.slam.to_map_file()
                 save_map(path, m)
             response.success, response.message = True, f"saved {len(m.gaussians)} Gaussians to {path}"

@@ -61,8 +61,9 @@ class SlamConfig:
     def for_live(self) -> SlamConfig:
         """This config as live runs use it: the ``live`` section's replacements applied.
 
-        ``live.tracking_method`` / ``live.mapping_every`` replace ``tracking.method`` /
-        ``mapping.every`` (either, when null, leaves its setting as it is);
+        ``live.tracking_method`` / ``live.mapping_every`` / ``live.refresh_labels_keyframes_only``
+        replace ``tracking.method`` / ``mapping.every`` / ``mapping.refresh_labels_keyframes_only``
+        (each, when null, leaves its setting as it is);
         ``live.geometry_lr_scale`` multiplies the mapping's centre and size learning rates.
         """
         config, live = self, self.live
@@ -71,6 +72,8 @@ class SlamConfig:
         mapping = config.mapping
         if live.mapping_every is not None:
             mapping = replace(mapping, every=live.mapping_every)
+        if live.refresh_labels_keyframes_only is not None:
+            mapping = replace(mapping, refresh_labels_keyframes_only=live.refresh_labels_keyframes_only)
         if live.geometry_lr_scale != 1.0:
             scale = live.geometry_lr_scale
             mapping = replace(mapping, lr_means=mapping.lr_means * scale, lr_scales=mapping.lr_scales * scale)

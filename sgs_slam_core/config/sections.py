@@ -228,6 +228,11 @@ class MotionSettings:
             intervals (the shortest gap between two tracked frames) after the last tracked one,
             i.e. when frames were dropped and the prediction extrapolates; 0 = on every frame
             (less accurate on Kinect depth, where the photometric terms do better alone).
+        icp_reference_distance_m, icp_reference_angle_deg: the ICP's reference frame stays until a
+            tracked frame's camera centre is this far (m) from its, or its optical axis turned this
+            much (degrees), or the ICP against it failed; then that frame becomes the reference.
+            Odometry against a reference kept over several frames drifts per reference instead of
+            per frame. Either 0: every tracked frame is the next one's reference.
     """
 
     constant_velocity: bool = True
@@ -235,12 +240,20 @@ class MotionSettings:
     icp_max_distance_m: float = 0.1
     icp_min_inliers: float = 0.3
     icp_min_gap: float = 1.5
+    icp_reference_distance_m: float = 0.0
+    icp_reference_angle_deg: float = 0.0
 
     def __post_init__(self) -> None:
         if any(n < 0 for n in self.icp_iterations) or len(self.icp_iterations) > 6:
             raise ConfigError(f"motion.icp_iterations must be at most 6 counts >= 0, got {list(self.icp_iterations)}")
         _positive("motion", icp_max_distance_m=self.icp_max_distance_m)
-        _non_negative("motion", icp_min_gap=self.icp_min_gap)
+        _non_negative(
+            "motion",
+            icp_min_gap=self.icp_min_gap,
+            icp_reference_distance_m=self.icp_reference_distance_m,
+        )
+        if not 0 <= self.icp_reference_angle_deg <= 90:
+            raise ConfigError(f"motion.icp_reference_angle_deg must be in [0, 90], got {self.icp_reference_angle_deg}")
         if not 0 <= self.icp_min_inliers <= 1:
             raise ConfigError(f"motion.icp_min_inliers must be in [0, 1], got {self.icp_min_inliers}")
 
@@ -304,6 +317,9 @@ class MappingSettings:
             growing, and every render with them. Off by default because on coarse images a bound
             also narrows splats the map needs (1.5 px loses accuracy at 160x120).
         refresh_labels: after mapping, set every Gaussian's class id from its semantic features.
+        refresh_labels_keyframes_only: only after mapping a frame that becomes a keyframe (live runs:
+            ``live.refresh_labels_keyframes_only``). The Gaussians a frame adds take their class from
+            its labels either way; older ones follow within ``keyframes.every`` frames.
     """
 
     iterations: int = 60
@@ -325,6 +341,7 @@ class MappingSettings:
     scene_radius_depth_ratio: float = 3.0
     max_scale_px: float | None = None
     refresh_labels: bool = True
+    refresh_labels_keyframes_only: bool = False
 
     def __post_init__(self) -> None:
         _non_negative(
@@ -539,6 +556,9 @@ class LiveSettings:
             ``mapping.every`` (null: that one); every frame is still densified, and mapping steps
             fill the time between frames either way. Fewer mapping jobs leave the tracker more of
             the machine: more frames tracked, fewer mapping steps.
+        refresh_labels_keyframes_only: live runs re-decode every Gaussian's class after mapping a
+            keyframe only, in place of ``mapping.refresh_labels_keyframes_only`` (null: that one): the
+            re-decoding costs a mapping job about a step's time on a CPU.
         geometry_lr_scale: live runs multiply ``mapping.lr_means`` and ``mapping.lr_scales`` by this
             (1 = lockstep's rates). Live on a CPU a frame gets a few mapping steps where lockstep
             makes ``mapping.iterations``; centres and sizes that move further per step can still
@@ -549,6 +569,7 @@ class LiveSettings:
     preempt_fraction: float = 1 / 3
     tracking_method: TrackerName | None = "gauss_newton"
     mapping_every: int | None = None
+    refresh_labels_keyframes_only: bool | None = True
     geometry_lr_scale: float = 1.0
 
     def __post_init__(self) -> None:

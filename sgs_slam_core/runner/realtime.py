@@ -208,6 +208,7 @@ class _Replay:
             self.report()
         finally:
             pipeline.shutdown()
+        self.slam.refresh_labels()  # the workers are stopped: the classes as of the last mapped frame
         result = RealtimeResult(
             self._stats(pipeline, times, hz, wall_s),
             interrupted=interrupted,

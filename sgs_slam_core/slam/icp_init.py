@@ -12,7 +12,7 @@ from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.icp import IcpKernels, IcpLevel, IcpSettings, align_depth, icp_pyramid
 from sgs_slam_core.profiling import stage
 
-__all__ = ["IcpInit", "IcpOutcome"]
+__all__ = ["IcpInit", "IcpOutcome", "ReferencePolicy"]
 
 
 @dataclass(frozen=True)
@@ -24,6 +24,24 @@ class IcpOutcome:
     rms_m: float
 
 
+@dataclass(frozen=True)
+class ReferencePolicy:
+    """How long a tracked frame stays the ICP's reference (either 0: one frame).
+
+    Until the camera centre is ``distance_m`` (m) from the reference's or its optical axis turned
+    ``angle_deg`` (degrees) from it.
+    """
+
+    distance_m: float = 0.0
+    angle_deg: float = 0.0
+
+    def keeps(self, ref_c2w: np.ndarray, c2w: np.ndarray) -> bool:  # [4, 4] each
+        """Whether the reference taken at ``ref_c2w`` still serves a frame at ``c2w``."""
+        near = np.linalg.norm(c2w[:3, 3] - ref_c2w[:3, 3]) < self.distance_m
+        aligned = float(ref_c2w[:3, 2] @ c2w[:3, 2]) > np.cos(np.radians(self.angle_deg))
+        return bool(near and aligned)
+
+
 @dataclass
 class _Reference:
     depth: Tensor  # [H, W] m, 0 = invalid
@@ -33,20 +51,50 @@ class _Reference:
 
 
 class IcpInit:
-    """Keeps the last tracked frame's depth and aligns a new frame's depth to it.
+    """Keeps a tracked frame's depth as the reference and aligns a new frame's depth to it.
 
     Used by one tracking thread; ``Slam.reset`` (and so a map load) makes a fresh one.
     """
 
-    def __init__(self, settings: IcpSettings, min_inliers: float, kernels: IcpKernels | None = None) -> None:
-        """``kernels``: the ICP's compiled parts (``Kernels.icp``); None = ``geometry.icp``'s PyTorch code."""
+    def __init__(
+        self,
+        settings: IcpSettings,
+        min_inliers: float,
+        kernels: IcpKernels | None = None,
+        policy: ReferencePolicy | None = None,
+    ) -> None:
+        """``kernels``: the ICP's compiled parts (``Kernels.icp``); None = ``geometry.icp``'s PyTorch code.
+
+        ``policy``: how long a reference is kept (None: every tracked frame replaces it).
+        """
         self.settings, self.min_inliers = settings, min_inliers
         self.kernels = kernels or IcpKernels()
+        self.policy = policy or ReferencePolicy()
         self._reference: _Reference | None = None
+        self._reference_failed = False  # the last alignment against the reference was not used
+
+    @property
+    def reference_c2w(self) -> np.ndarray | None:  # [4, 4]
+        """Where the current reference frame was taken; None before the first."""
+        return None if self._reference is None else self._reference.c2w.copy()
 
     def remember(self, depth: Tensor, intrinsics: Intrinsics, c2w: np.ndarray) -> None:  # depth [H, W] m
-        """Make ``depth``, seen from ``c2w``, the reference of the next frame (kept, not copied)."""
-        self._reference = _Reference(depth, intrinsics, np.asarray(c2w, dtype=np.float64).copy())
+        """Make a tracked frame's ``depth``, seen from ``c2w`` [4, 4], the reference (kept, not copied).
+
+        Unless the current reference still serves that pose (``policy``) and the last alignment
+        against it succeeded.
+        """
+        c2w = np.asarray(c2w, dtype=np.float64)
+        ref = self._reference
+        if (
+            ref is not None
+            and ref.intrinsics == intrinsics
+            and not self._reference_failed
+            and self.policy.keeps(ref.c2w, c2w)
+        ):
+            return
+        self._reference = _Reference(depth, intrinsics, c2w.copy())
+        self._reference_failed = False
 
     def refine(
         self, depth: Tensor, intrinsics: Intrinsics, predicted_c2w: np.ndarray
@@ -66,6 +114,7 @@ class IcpInit:
                 ref.levels = icp_pyramid(ref.depth, ref.intrinsics, levels, self.kernels.level)
             result = align_depth(depth, intrinsics, ref.levels, init, self.settings, self.kernels)
         used = result.inlier_fraction >= self.min_inliers and np.isfinite(result.rms_m)
+        self._reference_failed = not used
         outcome = IcpOutcome(used, result.inlier_fraction, result.rms_m)
         if not used:
             return predicted_c2w, outcome

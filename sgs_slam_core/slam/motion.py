@@ -1,4 +1,4 @@
-"""Where tracking starts: constant velocity, refined by depth ICP after dropped frames.
+"""Where tracking starts: constant velocity, refined by depth ICP against a recent tracked frame.
 
 Only accepted poses count; a rejected frame is tracked again from the fallback start.
 """
@@ -13,7 +13,7 @@ import torch
 from sgs_slam_core.config.sections import MotionSettings
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.geometry.icp import IcpKernels
-from sgs_slam_core.slam.icp_init import IcpInit
+from sgs_slam_core.slam.icp_init import IcpInit, ReferencePolicy
 from sgs_slam_core.slam.pose import predict_constant_velocity
 
 __all__ = ["MotionModel"]
@@ -32,7 +32,8 @@ class MotionModel:
         self._resumed: list[np.ndarray] = []  # last two c2w of a loaded map: it goes on moving
         self._min_interval_ns: int | None = None  # shortest stamp gap between two tracked frames
         icp = settings.icp
-        self._icp = None if icp is None else IcpInit(icp, settings.icp_min_inliers, icp_kernels)
+        policy = ReferencePolicy(settings.icp_reference_distance_m, settings.icp_reference_angle_deg)
+        self._icp = None if icp is None else IcpInit(icp, settings.icp_min_inliers, icp_kernels, policy)
 
     def resume(self, poses: list[np.ndarray]) -> None:
         """Continue from a saved run's last poses (c2w [4, 4], oldest first)."""

@@ -104,6 +104,7 @@ class Slam:
         self.frames_processed = 0
         self.failures = 0
         self._last_mapped: int | None = None  # index of the last frame mapping ran on
+        self._labels_stale = False  # classes last re-decoded at a keyframe (live), mapped since
         self._loaded_trajectory: list[tuple[int, int, np.ndarray]] = []  # a loaded map's history, saved again
         self._loaded_keyframe_poses: list[tuple[int, np.ndarray]] = []  # its keyframes without images
         self._gt_origin: np.ndarray | None = None
@@ -219,13 +220,13 @@ class Slam:
             timings["keyframe_selection"] = time.perf_counter() - t_sel
             frames = upload_window(self.keyframes, window, data, tracked.c2w, self.codec, self.edits)
             gaussians, stats = self._optimised(gaussians, frames, use_sem, between_iterations)
-        if self.config.mapping.refresh_labels and use_sem:
-            gaussians = self._refreshed_labels(gaussians)
+        keyframe = self._keyframe_due(tracked.index)
+        gaussians, stale = self._labelled(gaussians, use_sem, keyframe)
         if before_publish is not None:
             before_publish()
-        self.gaussians = gaussians
-        keyframe = self._keep_keyframe(frame, tracked)
+        self.gaussians, self._labels_stale = gaussians, stale
         if keyframe:  # freed tensors' pages go back to the OS: the resident size stays as flat as the live data
+            self._store_keyframe(frame, tracked)
             release_free_heap()
         timings["map"] = time.perf_counter() - t0
         return MapOutcome(stats, window, keyframe, added, timings["map"], timings)
@@ -328,7 +329,7 @@ class Slam:
             label_table=self.codec.table,
             config=config_to_dict(self.config),
             intrinsics=self.intrinsics,
-            keyframes=[*self._loaded_keyframe_poses, *self.keyframe_poses()],
+            keyframes=sorted([*self._loaded_keyframe_poses, *self.keyframe_poses()], key=lambda kp: kp[0]),
             trajectory=[*self._loaded_trajectory, *self.trajectory],
             seen_labels=self.label_candidates(),
             scene_radius=self.scene_radius,
@@ -369,14 +370,32 @@ class Slam:
         every, last = self.config.mapping.every, self._last_mapped
         return (last is None or index // every > last // every) and self.config.mapping.iterations > 0
 
-    def _keep_keyframe(self, frame: Frame, tracked: TrackOutcome) -> bool:
-        """Keep the frame in the keyframe store when it is due; True when kept."""
+    def _keyframe_due(self, index: int) -> bool:
+        """Whether the mapped frame ``index`` becomes a keyframe."""
         last = self.keyframes[-1].index if self.keyframes else None
-        if not is_keyframe(tracked.index, self.config.keyframes.every, last):
-            return False
+        return is_keyframe(index, self.config.keyframes.every, last)
+
+    def _store_keyframe(self, frame: Frame, tracked: TrackOutcome) -> None:
         stored = Frame(frame.rgb, frame.depth, frame.intrinsics, frame.labels, frame.stamp_ns, None, tracked.index)
         self.keyframes.add(CompactFrame.from_frame(stored, np.linalg.inv(tracked.c2w)))
-        return True
+
+    def _labelled(self, gaussians: GaussianMap, use_semantics: bool, keyframe: bool) -> tuple[GaussianMap, bool]:
+        """``gaussians`` with their classes re-decoded where due (``mapping.refresh_labels*``); still stale?"""
+        m = self.config.mapping
+        if not (m.refresh_labels and use_semantics):
+            return gaussians, self._labels_stale
+        if m.refresh_labels_keyframes_only and not keyframe:
+            return gaussians, True
+        return self._refreshed_labels(gaussians), False
+
+    def refresh_labels(self) -> None:
+        """Re-decode every Gaussian's class now where frames were mapped since the last re-decoding.
+
+        With ``mapping.refresh_labels_keyframes_only`` (live runs) the classes are as of the last
+        keyframe; a run's end and a saved map call this.
+        """
+        if self._labels_stale:
+            self.gaussians, self._labels_stale = self._refreshed_labels(self.gaussians), False
 
     def _refreshed_labels(self, gaussians: GaussianMap) -> GaussianMap:
         """Each Gaussian's class decoded again from its semantic features (locked classes neither gain nor lose)."""

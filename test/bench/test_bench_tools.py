@@ -15,7 +15,7 @@ from ..conftest import FAST_SLAM
 
 
 def test_profile_breaks_frames_down_by_the_pipeline_labels(tiny_scene):
-    config = load_config("synthetic", overrides=[*FAST_SLAM, "device=cpu"])
+    config = load_config("synthetic", overrides=[*FAST_SLAM, "device=cpu", "tracking.method=adam"])  # its labels
     prof = profile_frames(open_dataset(tiny_scene), config, warmup=2, count=2)
     rows, wall_ms = prof.rows, prof.wall_ms
     found = {r.label: r for r in rows}

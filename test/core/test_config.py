@@ -76,16 +76,24 @@ def test_range_errors_and_bad_overrides(tmp_path):
 
 
 def test_live_runs_swap_in_the_live_tracker_and_lockstep_runs_keep_the_presets():
-    preset = load_config("synthetic")
+    preset = load_config("replica")
     assert preset.tracking.method == "adam" and preset.for_live().tracking.method == "gauss_newton"
     assert preset.for_live().tracking.adam == preset.tracking.adam  # the rest of the section stays
-    keep = load_config("synthetic", overrides=["live.tracking_method=null"])
+    keep = load_config("replica", overrides=["live.tracking_method=null"])
     assert keep.for_live() is keep
-    assert load_config("synthetic", overrides=["live.tracking_method=adam"]).for_live().tracking.method == "adam"
-    tum = load_config("tum")  # Gauss-Newton in lockstep as well: nothing to swap
-    assert tum.tracking.method == "gauss_newton" and tum.for_live().tracking == tum.tracking
+    assert load_config("replica", overrides=["live.tracking_method=adam"]).for_live().tracking.method == "adam"
+    for name in ("tum", "synthetic"):  # Gauss-Newton in lockstep as well: nothing to swap
+        config = load_config(name)
+        assert config.tracking.method == "gauss_newton" and config.for_live().tracking == config.tracking
     with pytest.raises(ConfigError, match=r"live\.tracking_method"):
         load_config("tum", overrides=["live.tracking_method=lbfgs"])
+
+
+def test_live_runs_re_decode_classes_after_keyframes_only():
+    config = load_config("synthetic")
+    assert not config.mapping.refresh_labels_keyframes_only and config.for_live().mapping.refresh_labels_keyframes_only
+    keep = load_config("synthetic", overrides=["live.refresh_labels_keyframes_only=null"])
+    assert not keep.for_live().mapping.refresh_labels_keyframes_only
 
 
 def test_live_runs_may_map_fewer_frames_than_lockstep_runs():

@@ -10,7 +10,7 @@ from rcl_interfaces.msg import Log
 
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, tiny_frames, wait_for
+from .helpers import FAST, Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, tiny_frames, wait_for
 
 pytestmark = pytest.mark.ros
 PERIOD = 33_333_333  # ns
@@ -64,7 +64,7 @@ def test_busy_lockstep_node_gives_no_remap_advice(tiny_scene):
     """Frames that take longer than stale_input_s, fed one after the other as bag_player --lockstep does."""
     frames = tiny_frames(tiny_scene)
     ctx = new_context()
-    params = node_params(stale_input_s=0.5, map_alignment="floor")
+    params = node_params(stale_input_s=0.5, map_alignment="floor", overrides=[*FAST, "tracking.method=adam"])
     nodes = build_slam_nodes(context=ctx, parameter_overrides=params)
     # a slow frame (as 640x480 on a small CPU): the worker spends 1.5 s before the pose goes out
     nodes[0].pipeline.pose_listeners.insert(0, lambda *_: time.sleep(1.5))
@@ -79,7 +79,7 @@ def test_busy_lockstep_node_gives_no_remap_advice(tiny_scene):
             feeder.publish(frame)
             assert wait_for(lambda f=frame: f.stamp_ns in feeder.poses, 60.0)
         assert nodes[0].pipeline.wait_idle(60.0)
-        assert nodes[0].pipeline.slam.config.tracking.method == "adam"  # lockstep keeps the preset's
+        assert nodes[0].pipeline.slam.config.tracking.method == "adam"  # lockstep keeps the config's (live: GN)
         statuses = diagnostics_of(diag, "tracking_node")
         busy = [m for lvl, m, _ in statuses if m.startswith("busy")]
         assert busy and "frames/s" in busy[0], [m for _, m, _ in statuses]  # slower than stale_input_s: it says so

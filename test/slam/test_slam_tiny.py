@@ -143,7 +143,8 @@ def test_tracking_failure_is_flagged_and_the_map_kept(tiny):
 
 @pytest.mark.parametrize("retry", [True, False])
 def test_a_failed_frame_is_tracked_again_from_the_last_accepted_pose(tiny, retry):
-    overrides = [*FAST_SLAM, "guard.warmup_frames=1", f"guard.retry={str(retry).lower()}"]
+    adam = "tracking.method=adam"  # its iterations count both attempts
+    overrides = [*FAST_SLAM, adam, "guard.warmup_frames=1", f"guard.retry={str(retry).lower()}"]
     slam = Slam(load_config("synthetic", overrides=overrides), tiny.label_table)
     for i in range(4):
         slam.process(tiny[i])
@@ -164,3 +165,26 @@ def test_gt_pose_mode(tiny):
     _, steps = run(tiny, ["tracking.use_gt_pose=true"], frames=3)
     gt = np.linalg.inv(tiny[0].gt_c2w) @ tiny[2].gt_c2w
     assert np.allclose(steps[2].c2w, gt) and steps[2].track.result is None
+
+
+def test_classes_may_be_re_decoded_after_keyframes_only(tiny, monkeypatch):
+    """Live runs re-decode after keyframes (frames 0 and 4 of six); the Gaussians a frame adds carry its labels."""
+    calls = []
+    refreshed = Slam._refreshed_labels
+
+    def spy(self, gaussians):
+        calls.append(self.frames_processed)
+        return refreshed(self, gaussians)
+
+    monkeypatch.setattr(Slam, "_refreshed_labels", spy)
+    counts = []
+    for only in ("false", "true"):
+        calls.clear()
+        slam, steps = run(tiny, [f"mapping.refresh_labels_keyframes_only={only}"], frames=6)
+        counts.append(len(calls))
+        assert [s.map.keyframe for s in steps] == [True, False, False, False, True, False]
+        assert set(slam.gaussians.labels.unique().tolist()) <= slam.seen_ids
+        slam.refresh_labels()  # a run's end: once where frames were mapped since the last re-decoding
+        slam.refresh_labels()
+        counts.append(len(calls))
+    assert counts == [6, 6, 2, 3]

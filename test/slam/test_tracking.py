@@ -105,7 +105,8 @@ def test_the_icp_start_runs_after_dropped_frames_only_and_helps_there(tiny_scene
     monkeypatch.setattr(IcpInit, "refine", spy)
     errors, steps = [], []
     for icp in ("motion.icp_min_gap=1.5", "motion.icp_iterations=[]"):
-        slam = Slam(load_config("synthetic", overrides=[*FAST_SLAM, icp]), tiny.label_table)
+        frame_to_frame = ("tracking.method=adam", "motion.icp_reference_angle_deg=0")  # against the last frame
+        slam = Slam(load_config("synthetic", overrides=[*FAST_SLAM, icp, *frame_to_frame]), tiny.label_table)
         for i in range(4):
             slam.process(tiny[i])
         assert outcomes == []
