@@ -79,7 +79,7 @@ def test_live_runs_swap_in_the_live_tracker_and_lockstep_runs_keep_the_presets()
     preset = load_config("replica")
     assert preset.tracking.method == "adam" and preset.for_live().tracking.method == "gauss_newton"
     assert preset.for_live().tracking.adam == preset.tracking.adam  # the rest of the section stays
-    keep = load_config("replica", overrides=["live.tracking_method=null"])
+    keep = load_config("replica", overrides=["live.tracking_method=null", "live.refresh_labels_keyframes_only=null"])
     assert keep.for_live() is keep
     assert load_config("replica", overrides=["live.tracking_method=adam"]).for_live().tracking.method == "adam"
     for name in ("tum", "synthetic"):  # Gauss-Newton in lockstep as well: nothing to swap
@@ -115,9 +115,11 @@ def test_live_runs_move_the_maps_geometry_further_per_step():
         lockstep.lr_opacities,
         lockstep.iterations,
     )
-    same = load_config("tum", overrides=["live.geometry_lr_scale=1"])
+    labels = "live.refresh_labels_keyframes_only=null"  # that one aside
+    same = load_config("tum", overrides=["live.geometry_lr_scale=1", labels])
     assert same.for_live().mapping == same.mapping
-    assert load_config("synthetic").for_live().mapping == load_config("synthetic").mapping  # 1 by default
+    synthetic = load_config("synthetic", overrides=[labels])
+    assert synthetic.for_live().mapping == synthetic.mapping  # 1 by default
     for bad in ("0", "-1"):
         with pytest.raises(ConfigError, match=r"live\.geometry_lr_scale"):
             load_config("tum", overrides=[f"live.geometry_lr_scale={bad}"])
