@@ -229,8 +229,9 @@ class MotionSettings:
             i.e. when frames were dropped and the prediction extrapolates; 0 = on every frame
             (less accurate on Kinect depth, where the photometric terms do better alone).
         icp_reference_distance_m, icp_reference_angle_deg: the ICP's reference frame stays until a
-            tracked frame's camera centre is this far (m) from its, or its optical axis turned this
-            much (degrees), or the ICP against it failed; then that frame becomes the reference.
+            tracked frame's camera centre is this far (m) from the reference's, or its optical axis
+            turned this much (degrees), or the ICP against it failed; then that frame becomes the
+            reference.
             Odometry against a reference kept over several frames drifts per reference instead of
             per frame. Either 0: every tracked frame is the next one's reference.
     """
