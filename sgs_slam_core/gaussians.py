@@ -137,7 +137,8 @@ class GaussianMap:
         if mask.dtype == torch.bool and tuple(mask.shape) != (len(self),):
             raise ShapeError(f"mask must be [N]={len(self)}, got {list(mask.shape)}")
         mask = mask.to(self.device)
-        return GaussianMap(**{k: v[mask] for k, v in self._tensors().items()})
+        index = mask.nonzero().squeeze(1) if mask.dtype == torch.bool else mask  # gathers beat mask indexing
+        return GaussianMap(**{k: v.index_select(0, index) for k, v in self._tensors().items()})
 
     def prune(self, remove: Tensor) -> GaussianMap:  # remove: [N] bool
         """Drop the Gaussians where ``remove`` is True."""

@@ -67,10 +67,13 @@ class FusedAdam:
                 p.grad = None
 
     def replace(self, name: str, new: Tensor, rows: Tensor | None = None) -> None:
-        """Swap ``params[name]`` for ``new``; its moments keep ``rows`` (a [N] bool or index) when given."""
+        """Swap ``params[name]`` for ``new``; its moments keep ``rows`` (a [N] bool or [M] int64 index) when given."""
         self.params[name] = new
         s = self.state.get(name)
         if s is not None and rows is not None:
-            self.state[name] = AdamMoments(s.exp_avg[rows], s.exp_avg_sq[rows], s.step)
+            index = rows.nonzero().squeeze(1) if rows.dtype == torch.bool else rows
+            self.state[name] = AdamMoments(
+                s.exp_avg.index_select(0, index), s.exp_avg_sq.index_select(0, index), s.step
+            )
         elif s is not None:
             del self.state[name]

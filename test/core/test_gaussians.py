@@ -39,6 +39,9 @@ def test_cat_select_prune():
     keep = a.labels == 1
     sub = a.select(keep)
     assert len(sub) == int(keep.sum()) and bool((sub.labels == 1).all())
+    by_index = a.select(keep.nonzero().squeeze(1))  # the same rows, each field gathered as the mask indexes it
+    assert all(torch.equal(getattr(sub, f), getattr(by_index, f)) for f in ("means", "colors", "semantics", "labels"))
+    assert torch.equal(sub.means, a.means[keep]) and len(a.select(keep[:0].nonzero().squeeze(1))) == 0
     pruned = a.prune(keep)
     assert len(pruned) == 10 - len(sub) and not bool((pruned.labels == 1).any())
     with pytest.raises(ShapeError, match="cannot join"):

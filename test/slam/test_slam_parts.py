@@ -91,10 +91,12 @@ def test_optimizer_prune_keeps_adam_moments_aligned():
     loss.backward()
     opt.step()
     moments = opt.adam.state["means"].exp_avg.clone()
+    stepped = opt.params["means"].detach().clone()
     keep = torch.arange(10) % 3 != 0
     assert opt.prune(keep) == 4
     new = opt.params["means"]
     assert new.shape == (6, 3) and torch.equal(opt.adam.state["means"].exp_avg, moments[keep])
+    assert torch.equal(new.detach(), stepped[keep]) and torch.equal(opt.result().labels, gm.labels[keep])
     assert len(opt.result()) == 6 and opt.result().labels.shape == (6,)
     before = new.detach().clone()
     new.sum().backward()
