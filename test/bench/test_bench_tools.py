@@ -5,7 +5,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+import torch
 
+from bench.bench_prune import prune_by_mask, stepped_optimizer
 from bench.bench_slam import LABELS, ops_table, profile_frames, profile_table
 from bench.plot import Series, line_chart, line_panel, save_panels
 from sgs_slam_core.config import load_config
@@ -91,3 +93,14 @@ def test_long_run_loops_report_their_means_and_the_drift_from_loop_two(tmp_path)
     body = report(rows, samples, RESULTS / "x.png", "What ran.")
     assert "| GPU peak MB |" in body and "| 818 |" in body and "Gaussians 0.0 %" in body
     assert "| tile pairs M |" in body and "tile pairs 0.0 %" in body
+
+
+def test_the_prune_bench_times_two_ways_to_the_same_rows():
+    keep = torch.arange(50) % 4 != 0
+    before, now = stepped_optimizer(50, 3), stepped_optimizer(50, 3)
+    prune_by_mask(before, keep)
+    assert now.prune(keep) == 13
+    for name in now.names:
+        assert torch.equal(before.params[name], now.params[name]) and before.params[name].requires_grad
+        assert torch.equal(before.adam.state[name].exp_avg_sq, now.adam.state[name].exp_avg_sq)
+    assert torch.equal(before.result().labels, now.result().labels)
