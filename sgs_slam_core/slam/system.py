@@ -31,7 +31,7 @@ from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.densify import densify_frame, scene_radius
 from sgs_slam_core.slam.edits import EditLocks
 from sgs_slam_core.slam.guard import TrackingGuard
-from sgs_slam_core.slam.heap import release_free_heap
+from sgs_slam_core.slam.heap import keep_freed_heap, release_free_heap
 from sgs_slam_core.slam.keyframe_store import KeyframeStore
 from sgs_slam_core.slam.keyframes import is_keyframe
 from sgs_slam_core.slam.map_frame import MapFrameChoice, MapFramePolicy
@@ -64,6 +64,8 @@ class Slam:
     Not thread-safe by itself. :meth:`track` may run beside :meth:`map` (it reads the map
     reference once, and the map is replaced whole, never changed in place); everything else is
     serialised by the caller (:class:`~sgs_slam_core.live.pipeline.SlamPipeline`).
+    Creating one sets the process's heap to keep freed memory for reuse between keyframes
+    (:func:`~sgs_slam_core.slam.heap.keep_freed_heap`).
     """
 
     def __init__(
@@ -73,6 +75,7 @@ class Slam:
         self.device = resolve_device(config.device)
         self.codec = SemanticCodec(config.semantic, label_table or LabelTable.nyu40())
         self.given_c2w = None if initial_c2w is None else np.asarray(initial_c2w, dtype=np.float64)
+        keep_freed_heap()  # frame-sized buffers are reused, not faulted in again every frame
         self.reset()
 
     def prepare(self, announce: Callable[[str], None]) -> None:
