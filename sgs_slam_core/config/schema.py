@@ -63,8 +63,10 @@ class SlamConfig:
 
         ``live.tracking_method`` / ``live.mapping_every`` / ``live.refresh_labels_keyframes_only``
         replace ``tracking.method`` / ``mapping.every`` / ``mapping.refresh_labels_keyframes_only``
-        (each, when null, leaves its setting as it is);
-        ``live.geometry_lr_scale`` multiplies the mapping's centre and size learning rates.
+        and ``live.mapping_weight_color`` / ``live.densify_depth_error_factor`` replace
+        ``mapping.weight_color`` / ``densify.depth_error_factor`` (each, when null, leaves its
+        setting as it is); ``live.geometry_lr_scale`` multiplies the mapping's centre and size
+        learning rates.
         """
         config, live = self, self.live
         if live.tracking_method is not None and live.tracking_method != config.tracking.method:
@@ -77,7 +79,14 @@ class SlamConfig:
         if live.geometry_lr_scale != 1.0:
             scale = live.geometry_lr_scale
             mapping = replace(mapping, lr_means=mapping.lr_means * scale, lr_scales=mapping.lr_scales * scale)
-        return config if mapping == config.mapping else replace(config, mapping=mapping)
+        if live.mapping_weight_color is not None:
+            mapping = replace(mapping, weight_color=live.mapping_weight_color)
+        if mapping != config.mapping:
+            config = replace(config, mapping=mapping)
+        if live.densify_depth_error_factor is not None:
+            densify = replace(config.densify, depth_error_factor=live.densify_depth_error_factor)
+            config = replace(config, densify=densify)
+        return config
 
     def __post_init__(self) -> None:
         if self.seed < 0:

@@ -564,6 +564,13 @@ class LiveSettings:
             (1 = lockstep's rates). Live on a CPU a frame gets a few mapping steps where lockstep
             makes ``mapping.iterations``; centres and sizes that move further per step can still
             fit noisy depth in those few (the ``tum`` preset takes 3).
+        mapping_weight_color: live runs weigh the mapping loss's colour term by this in place of
+            ``mapping.weight_color`` (null: that one). In a few steps a frame, a lower colour weight
+            spends them on the depth the tracker aligns to (the ``tum`` preset: 0.25).
+        densify_depth_error_factor: live runs add Gaussians where the rendered depth lies behind the
+            measured by this times the median error, in place of ``densify.depth_error_factor``
+            (null: that one). A few steps a frame cannot pull a mapped surface onto geometry that
+            appeared in front of it; new Gaussians there can (the ``tum`` preset: 20).
     """
 
     map_turn_fraction: float = 0.01
@@ -572,10 +579,16 @@ class LiveSettings:
     mapping_every: int | None = None
     refresh_labels_keyframes_only: bool | None = True
     geometry_lr_scale: float = 1.0
+    mapping_weight_color: float | None = None
+    densify_depth_error_factor: float | None = None
 
     def __post_init__(self) -> None:
         if not self.geometry_lr_scale > 0:
             raise ConfigError(f"live.geometry_lr_scale must be > 0, got {self.geometry_lr_scale}")
+        if self.mapping_weight_color is not None and not self.mapping_weight_color >= 0:
+            raise ConfigError(f"live.mapping_weight_color must be >= 0 or null, got {self.mapping_weight_color}")
+        if self.densify_depth_error_factor is not None:
+            _positive("live", densify_depth_error_factor=self.densify_depth_error_factor)
         if self.mapping_every is not None and self.mapping_every < 1:
             raise ConfigError(f"live.mapping_every must be >= 1 or null, got {self.mapping_every}")
         for name, value in (("map_turn_fraction", self.map_turn_fraction), ("preempt_fraction", self.preempt_fraction)):

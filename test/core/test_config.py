@@ -1,4 +1,4 @@
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import pytest
@@ -115,11 +115,28 @@ def test_live_runs_move_the_maps_geometry_further_per_step():
         lockstep.lr_opacities,
         lockstep.iterations,
     )
-    labels = "live.refresh_labels_keyframes_only=null"  # that one aside
-    same = load_config("tum", overrides=["live.geometry_lr_scale=1", labels])
+    others = ["live.refresh_labels_keyframes_only=null", "live.mapping_weight_color=null"]  # those aside
+    same = load_config("tum", overrides=["live.geometry_lr_scale=1", *others])
     assert same.for_live().mapping == same.mapping
-    synthetic = load_config("synthetic", overrides=[labels])
+    synthetic = load_config("synthetic", overrides=others)
     assert synthetic.for_live().mapping == synthetic.mapping  # 1 by default
     for bad in ("0", "-1"):
         with pytest.raises(ConfigError, match=r"live\.geometry_lr_scale"):
             load_config("tum", overrides=[f"live.geometry_lr_scale={bad}"])
+
+
+def test_live_runs_spend_their_few_mapping_steps_on_depth():
+    config = load_config("tum")  # the preset's live weights
+    live = config.for_live()
+    assert (config.mapping.weight_color, live.mapping.weight_color) == (0.5, 0.25)
+    assert (config.densify.depth_error_factor, live.densify.depth_error_factor) == (50.0, 20.0)
+    assert live.mapping.weight_depth == config.mapping.weight_depth
+    assert live.densify == replace(config.densify, depth_error_factor=20.0)  # nothing else of densify
+    unset = load_config("tum", overrides=["live.mapping_weight_color=null", "live.densify_depth_error_factor=null"])
+    assert unset.for_live().mapping.weight_color == 0.5 and unset.for_live().densify == unset.densify
+    synthetic = load_config("synthetic")  # null by default: lockstep's
+    assert synthetic.for_live().densify == synthetic.densify
+    assert synthetic.for_live().mapping.weight_color == synthetic.mapping.weight_color
+    for bad in ("live.mapping_weight_color=-0.1", "live.densify_depth_error_factor=0"):
+        with pytest.raises(ConfigError, match=bad.split("=")[0].replace(".", r"\.")):
+            load_config("tum", overrides=[bad])
