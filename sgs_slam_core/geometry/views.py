@@ -1,4 +1,7 @@
-"""Camera placement: look-at poses and orbits (camera-to-world, optical frame x right, y down, z forward)."""
+"""Camera placement: look-at poses, orbits, and which views lie near a pose.
+
+Poses are camera-to-world, optical frame x right, y down, z forward.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +9,7 @@ import numpy as np
 
 from sgs_slam_core.errors import ShapeError
 
-__all__ = ["WORLD_UP", "look_at", "orbit_poses"]
+__all__ = ["WORLD_UP", "look_at", "orbit_poses", "views_near"]
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])
 WORLD_UP.flags.writeable = False
@@ -50,3 +53,16 @@ def orbit_poses(
         eye = center + radius * (np.cos(angle) * a + np.sin(angle) * b) + height * up
         poses.append(look_at(eye, center, up))
     return poses
+
+
+def views_near(
+    centres: np.ndarray,  # [K, 3] m, camera centres in the world
+    axes: np.ndarray,  # [K, 3] unit optical axes in the world
+    c2w: np.ndarray,  # [4, 4]
+    radius_m: float,
+    angle_deg: float,
+) -> np.ndarray:  # [K] bool
+    """Which views lie within ``radius_m`` (m) of ``c2w``'s centre and ``angle_deg`` (degrees) of its axis."""
+    close = np.linalg.norm(centres - c2w[:3, 3], axis=1) <= radius_m
+    aligned = axes @ c2w[:3, 2] >= np.cos(np.radians(angle_deg))
+    return close & aligned

@@ -10,6 +10,7 @@ from torch import Tensor
 
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.icp import IcpKernels, IcpLevel, IcpSettings, align_depth, icp_pyramid
+from sgs_slam_core.geometry.views import views_near
 from sgs_slam_core.profiling import stage
 
 __all__ = ["IcpInit", "IcpOutcome", "ReferencePolicy"]
@@ -37,9 +38,9 @@ class ReferencePolicy:
 
     def keeps(self, ref_c2w: np.ndarray, c2w: np.ndarray) -> bool:  # [4, 4] each
         """Whether the reference taken at ``ref_c2w`` still serves a frame at ``c2w``."""
-        near = np.linalg.norm(c2w[:3, 3] - ref_c2w[:3, 3]) < self.distance_m
-        aligned = float(ref_c2w[:3, 2] @ c2w[:3, 2]) > np.cos(np.radians(self.angle_deg))
-        return bool(near and aligned)
+        if self.distance_m == 0 or self.angle_deg == 0:  # one frame, even where the camera stands still
+            return False
+        return bool(views_near(ref_c2w[None, :3, 3], ref_c2w[None, :3, 2], c2w, self.distance_m, self.angle_deg)[0])
 
 
 @dataclass

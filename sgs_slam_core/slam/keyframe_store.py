@@ -19,6 +19,7 @@ import numpy as np
 
 from sgs_slam_core.config.sections import KeyframeSettings
 from sgs_slam_core.frame import DEPTH_UNITS_PER_M, CompactFrame
+from sgs_slam_core.geometry.views import views_near
 from sgs_slam_core.slam.keyframes import label_miou, overlap_scores
 
 __all__ = ["KeyframeStore", "StoreStats", "view_points"]
@@ -93,9 +94,8 @@ class _Views:
     def near_indices(self, c2w: np.ndarray, up_to_index: int, radius_m: float, angle_deg: float) -> np.ndarray:
         """Frame indices [K] of the views ``near`` counts."""
         n = self._n
-        close = np.linalg.norm(self._centre[:n] - c2w[:3, 3], axis=1) <= radius_m
-        aligned = self._axis[:n] @ c2w[:3, 2] >= np.cos(np.radians(angle_deg))
-        return self._index[:n][(self._index[:n] <= up_to_index) & close & aligned]
+        near = views_near(self._centre[:n], self._axis[:n], c2w, radius_m, angle_deg)
+        return self._index[:n][(self._index[:n] <= up_to_index) & near]
 
 
 class KeyframeStore(Sequence[CompactFrame]):

@@ -12,6 +12,7 @@ from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.errors import ConfigError
 from sgs_slam_core.geometry import se3_exp
 from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.geometry.views import views_near
 from sgs_slam_core.slam.icp_init import IcpInit, ReferencePolicy
 from sgs_slam_core.slam.system import Slam
 
@@ -21,6 +22,15 @@ K = Intrinsics(40.0, 40.0, 15.5, 11.5, 32, 24)
 def pose(tx: float = 0.0, yaw_deg: float = 0.0) -> np.ndarray:  # c2w [4, 4]
     xi = torch.tensor([tx, 0.0, 0.0, 0.0, np.radians(yaw_deg), 0.0], dtype=torch.float64)
     return se3_exp(xi).numpy()
+
+
+def test_views_near_a_pose_are_those_close_enough_and_turned_little_enough():
+    views = [pose(), pose(0.2, 10.0), pose(0.3), pose(0.0, 13.0)]
+    centres = np.stack([v[:3, 3] for v in views])
+    axes = np.stack([v[:3, 2] for v in views])
+    assert views_near(centres, axes, pose(), 0.25, 12.0).tolist() == [True, True, False, False]
+    assert views_near(centres, axes, pose(0.3), 0.25, 12.0).tolist() == [False, True, True, False]
+    assert views_near(centres[:0], axes[:0], pose(), 0.25, 12.0).shape == (0,)
 
 
 def test_a_reference_serves_poses_within_its_distance_and_angle_and_either_zero_keeps_none():
