@@ -29,6 +29,7 @@ from sgs_slam_core.frame_ids import CAMERA_FRAME
 from sgs_slam_core.geometry.gravity import MapAlignment, pose_from_xyz_rpy
 from sgs_slam_core.labels import LabelError, LabelTable
 from sgs_slam_core.live import SlamPipeline
+from sgs_slam_core.slam.guard import TrackingState
 from sgs_slam_core.slam.map_frame import MapFrameChoice
 from sgs_slam_core.slam.outcomes import TrackOutcome
 from sgs_slam_core.slam.system import Slam
@@ -99,6 +100,7 @@ class TrackingNode(Node):
         )
         self.path: list[PoseStamped] = []
         self._path_lock = threading.Lock()
+        self._state: TrackingState = "ok"  # of the last pose published
         # on the executor at a bounded rate, not per pose on the tracking thread: a Path costs time
         # linear in its length to publish, and a live run's path grows by the camera's rate
         self.path_out = Throttled(self, self.params["path_rate_hz"], self._publish_path)
@@ -208,18 +210,30 @@ class TrackingNode(Node):
         if outcome.map_frame is not None:
             self._report_map_frame(outcome.map_frame)
         msg = pose_msg(outcome.c2w, outcome.stamp_ns, self.map_frame)
-        self.pose_pub.publish(msg)
+        self.pose_pub.publish(msg)  # while lost: the last tracked pose again (a lockstep player waits for each)
         self.activity.end()
-        if self.params["publish_tf"]:
-            self.tf.publish(outcome.c2w, outcome.stamp_ns, self.camera_frame())
         self._last_pose_sent = time.monotonic()
         self.outputs.tick()
+        self._report_state(outcome)
+        if outcome.lost:  # no estimate: /tf and the path keep the last tracked pose
+            return
+        if self.params["publish_tf"]:
+            self.tf.publish(outcome.c2w, outcome.stamp_ns, self.camera_frame())
         with self._path_lock:
             self.path.append(msg)
             del self.path[: -self.params["path_max_length"]]
         self.path_out.mark()
-        if outcome.failed:
-            self.get_logger().warn(f"tracking failure at stamp {outcome.stamp_ns}: {outcome.failure_reason}")
+
+    def _report_state(self, outcome: TrackOutcome) -> None:
+        """Log tracking failures, and when the camera is lost and found again."""
+        log = self.get_logger()
+        if outcome.state == "relocalized":
+            log.info(f"relocalized at stamp {outcome.stamp_ns}: tracking and mapping go on in the same map")
+        elif outcome.lost and self._state != "lost":
+            log.warn(f"camera lost at stamp {outcome.stamp_ns} ({outcome.failure_reason}): not mapping, relocalizing")
+        elif outcome.failed and not outcome.lost:
+            log.warn(f"tracking failure at stamp {outcome.stamp_ns}: {outcome.failure_reason}")
+        self._state = outcome.state
 
     def _publish_path(self) -> bool:
         """Publish ~/path (the kept poses, stamped as the newest); False when it is empty."""
@@ -243,6 +257,7 @@ class TrackingNode(Node):
         """Forget this node's per-run state (the pipeline was reset)."""
         self.camera.reset()
         self.alignment_used = ""
+        self._state = "ok"
         with self._path_lock:
             self.path.clear()
 
@@ -254,6 +269,8 @@ class TrackingNode(Node):
             level, message = warning
         elif self.pipeline.paused:
             message = "paused"
+        elif st.tracking_state == "lost":
+            level, message = WARN, "camera lost: relocalizing against the keyframes, not mapping"
         elif st.errors:
             level, message = WARN, f"errors: {st.last_error}"
         latency = sorted(st.latency_s)
@@ -266,6 +283,10 @@ class TrackingNode(Node):
             **self.camera.sizes(),
             "frames_tracked": str(st.tracked),
             "tracking_failures": str(st.tracking_failures),
+            "tracking_state": st.tracking_state,
+            "tracking_lost_events": str(st.lost_events),
+            "relocalizations": str(st.relocalizations),
+            "frames_while_lost": str(st.frames_while_lost),
             "gaussians": str(len(self.pipeline.snapshot().gaussians)),
             "silent_inputs": self.camera.silent_names(silent),
             "tf": tf_state if self.tf.available else "off (tf2_msgs missing)",

@@ -7,6 +7,7 @@ from typing import ClassVar, Literal
 
 from sgs_slam_core.config.sections import (
     DensifySettings,
+    FeatureSettings,
     GuardSettings,
     KeyframeSettings,
     LiveSettings,
@@ -40,6 +41,7 @@ class SlamConfig:
 
     map_frame: MapFrameSettings = field(default_factory=MapFrameSettings)
     motion: MotionSettings = field(default_factory=MotionSettings)
+    features: FeatureSettings = field(default_factory=FeatureSettings)
     tracking: TrackingSettings = field(default_factory=TrackingSettings)
     mapping: MappingSettings = field(default_factory=MappingSettings)
     densify: DensifySettings = field(default_factory=DensifySettings)

@@ -16,6 +16,7 @@ from sgs_slam_core.geometry.icp import IcpSettings
 __all__ = [
     "AdamTrackerSettings",
     "DensifySettings",
+    "FeatureSettings",
     "GaussNewtonSettings",
     "GuardSettings",
     "KeyframeSettings",
@@ -84,6 +85,11 @@ class GaussNewtonSettings:
             best evaluated pose, so never worse than the solve by that loss); 0 = none.
         adam_lr_scale: those steps' learning rates as a fraction of ``tracking.adam.lr_*`` (the solve
             starts them near the optimum, where the full rates overshoot).
+        feature_weight: the frame's feature matches (the inliers of its feature pose against the
+            last accepted frame) join the finest level's steps as reprojection terms, a pixel of
+            error counting as the metres it spans at the point's depth and each match as this many
+            pixels of the dense terms; they hold the pose where the geometry leaves a direction
+            free (a camera over a desk slides along it). 0 = not used.
         depth_noise: the depth camera's axial noise, ``base_m + quadratic_per_m (z - offset_m)^2``
             (m; a Kinect v1's by default): each point-to-plane residual is weighed by the noise at
             the frame's median depth over the noise at the point's depth, so ``huber_m`` is metres
@@ -104,6 +110,7 @@ class GaussNewtonSettings:
     keep_start: bool = False
     adam_steps: int = 0
     adam_lr_scale: float = 0.25
+    feature_weight: float = 10.0
     depth_noise: DepthNoise | None = field(default_factory=DepthNoise)
 
     def __post_init__(self) -> None:
@@ -126,6 +133,7 @@ class GaussNewtonSettings:
             semantic_scale_m=self.semantic_scale_m,
             photometric_levels=self.photometric_levels,
             adam_steps=self.adam_steps,
+            feature_weight=self.feature_weight,
         )
 
     @property
@@ -264,6 +272,59 @@ class MotionSettings:
         if not any(self.icp_iterations):
             return None
         return IcpSettings(iterations=self.icp_iterations, max_distance_m=self.icp_max_distance_m)
+
+
+@dataclass(frozen=True)
+class FeatureSettings:
+    """Sparse ORB features of each tracked frame: what the frames say about the motion, apart from the map.
+
+    The motion model starts tracking from the pose the features give against the last accepted
+    frame (RANSAC PnP on its depth) where the constant-velocity guess disagrees with it; the guard
+    rejects a tracked pose the features contradict; a lost camera is found again by matching its
+    features against the keyframes'.
+
+    Attributes:
+        enabled: extract and use features (off: constant velocity and the depth ICP only, no
+            relocalization).
+        count: ORB keypoints per frame at most.
+        levels: ORB pyramid levels (1.2 apart).
+        fast_threshold: FAST corner threshold (intensity levels of 255): lower finds corners in
+            blurred frames.
+        max_distance: matches whose descriptors differ in more bits (of 256) are dropped.
+        min_inliers: a feature pose needs at least this many matches within ``reprojection_px``.
+        reprojection_px: RANSAC's inlier threshold (px).
+        ransac_iterations: RANSAC hypotheses per solve.
+        start_agreement: the constant-velocity guess stays the start while it explains at least
+            this share of the feature pose's inlier matches (each within twice
+            ``reprojection_px``); otherwise the feature pose replaces it. A guess that explains
+            them is as good a start, and tracking refines either.
+    """
+
+    enabled: bool = True
+    count: int = 200
+    levels: int = 2
+    fast_threshold: int = 10
+    max_distance: int = 64
+    min_inliers: int = 20
+    reprojection_px: float = 2.0
+    ransac_iterations: int = 100
+    start_agreement: float = 0.8
+
+    def __post_init__(self) -> None:
+        _positive(
+            "features",
+            count=self.count,
+            levels=self.levels,
+            fast_threshold=self.fast_threshold,
+            reprojection_px=self.reprojection_px,
+            ransac_iterations=self.ransac_iterations,
+        )
+        if not 0 <= self.start_agreement <= 1:
+            raise ConfigError(f"features.start_agreement must be in [0, 1], got {self.start_agreement}")
+        if self.min_inliers < 6:
+            raise ConfigError(f"features.min_inliers must be >= 6 (a PnP needs them), got {self.min_inliers}")
+        if not 0 < self.max_distance <= 256:
+            raise ConfigError(f"features.max_distance must be in (0, 256] bits, got {self.max_distance}")
 
 
 @dataclass(frozen=True)
@@ -518,9 +579,22 @@ class GuardSettings:
         loss_jump: flag when the per-pixel tracking loss exceeds this times the recent median.
         min_valid_fraction: flag when fewer pixels than this are both measured and well mapped.
         min_residual_m: residuals below this never flag (noise floor).
-        retry: a flagged frame is tracked once more from the last accepted pose (without the
+        retry: a flagged frame is tracked once more, from its feature pose where the features give
+            one and it was not the start already, else from the last accepted pose (without the
             motion prediction, refined by the motion ICP when that is on), and accepted if that
-            passes; a camera that reversed, or came back after a loss, is found again.
+            passes; a camera that reversed, or came back after a loss, is found again. A frame
+            that still fails takes its feature pose (with ``relocalize_min_inliers`` matches),
+            accepted and mapped if that pose passes, else kept unmapped: the camera is not lost.
+        min_feature_agreement: flag a pose that explains fewer than this share of the feature
+            matches the frame's feature pose (against the last accepted frame) explains, each
+            within ``features.reprojection_px`` (0 = no feature check).
+        lost_after: this many flagged frames in a row mean the camera is lost: nothing is mapped
+            and every frame is relocalized until one is found again (0 = never lost).
+        relocalize_candidates: a lost frame is tracked from at most this many candidate poses: the
+            keyframes whose features match it best (and the last accepted frame's), each solved by
+            PnP first.
+        relocalize_min_inliers: a candidate needs this many feature matches agreeing with its PnP
+            pose; the tracked pose from it must then pass every test above.
     """
 
     enabled: bool = True
@@ -531,12 +605,26 @@ class GuardSettings:
     min_valid_fraction: float = 0.05
     min_residual_m: float = 0.02
     retry: bool = True
+    min_feature_agreement: float = 0.5
+    lost_after: int = 2
+    relocalize_candidates: int = 3
+    relocalize_min_inliers: int = 30
 
     def __post_init__(self) -> None:
         _positive("guard", history=self.history, residual_jump=self.residual_jump, loss_jump=self.loss_jump)
-        _non_negative("guard", warmup_frames=self.warmup_frames, min_residual_m=self.min_residual_m)
+        _non_negative(
+            "guard",
+            warmup_frames=self.warmup_frames,
+            min_residual_m=self.min_residual_m,
+            lost_after=self.lost_after,
+            relocalize_candidates=self.relocalize_candidates,
+        )
         if not 0 <= self.min_valid_fraction < 1:
             raise ConfigError("guard.min_valid_fraction must be in [0, 1)")
+        if not 0 <= self.min_feature_agreement <= 1:
+            raise ConfigError(f"guard.min_feature_agreement must be in [0, 1], got {self.min_feature_agreement}")
+        if self.relocalize_min_inliers < 6:
+            raise ConfigError(f"guard.relocalize_min_inliers must be >= 6, got {self.relocalize_min_inliers}")
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,7 @@ __all__ = [
     "IcpSettings",
     "IcpSteps",
     "IcpTerms",
+    "Observations",
     "align_depth",
     "align_device",
     "channel_pyramid",
@@ -174,6 +175,63 @@ class IcpResult:
     src_to_ref: Tensor  # [4, 4] float64: source camera frame -> reference camera frame
     inlier_fraction: float  # source pixels with a correspondence at the result, over source pixels with depth
     rms_m: float  # RMS point-to-plane residual over those correspondences (m)
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Points of known position seen at pixels of the source frame: sparse feature matches.
+
+    After the finest level's steps, one more step solves the dense terms and the points'
+    reprojection terms together (near the dense optimum the dense cost is close to its quadratic
+    model, so one Gauss-Newton step reaches the joint optimum). A pixel of reprojection
+    error counts as the lateral displacement it means at the point's depth (m), and each point as
+    ``weight`` pixels of the dense terms: the dense terms decide where they are well conditioned,
+    the points where the geometry leaves a direction free (a camera over a plane slides along it).
+    """
+
+    points: Tensor  # [M, 3] float64, in the reference (rendered) camera's frame (m)
+    pixels: Tensor  # [M, 2] float64, where the source frame sees them (px, u v)
+    weight: float  # how many dense pixels one point weighs as
+    huber_px: float  # reprojection errors beyond this (px) are down-weighted
+
+    def __post_init__(self) -> None:
+        if self.points.shape[-1] != 3 or self.pixels.shape != (self.points.shape[0], 2):
+            raise ShapeError(
+                f"observations need [M, 3] points and [M, 2] pixels, got {self.points.shape}, {self.pixels.shape}"
+            )
+
+
+def _observation_rows(
+    src_to_ref: Tensor,  # [4, 4] float64
+    obs: Observations,
+    k: Intrinsics,  # the source camera (the finest level)
+) -> tuple[Tensor, Tensor]:  # rows [2M, 7] float64 [d r / d (rho, phi) | r] in metres, their Huber weights [2M]
+    """The points' reprojection rows for a left perturbation of ``src_to_ref``, scaled to metres.
+
+    With x = R y + t the point in the source camera (``R, t`` of the inverse pose) and g the
+    gradient of a pixel coordinate in x, the row is ``[-g R | (g R) x y]``: x(xi) = R Exp(-xi) y + t.
+    """
+    inverse = torch.linalg.inv(src_to_ref)
+    rot, y = inverse[:3, :3], obs.points
+    x = y @ rot.T + inverse[:3, 3]  # [M, 3] in the source camera
+    ahead = x[:, 2] > 1e-3
+    inv_z = 1.0 / torch.where(ahead, x[:, 2], 1.0)  # [M]
+    r = torch.stack([x[:, 0] * inv_z * k.fx + k.cx, x[:, 1] * inv_z * k.fy + k.cy], dim=-1) - obs.pixels  # [M, 2] px
+    # d u / d x = fx / z (1, 0, -x / z) and d v / d x = fy / z (0, 1, -y / z), then through R
+    gu = (k.fx * inv_z)[:, None] * (rot[0] - (x[:, 0] * inv_z)[:, None] * rot[2])  # [M, 3]
+    gv = (k.fy * inv_z)[:, None] * (rot[1] - (x[:, 1] * inv_z)[:, None] * rot[2])
+    g = torch.stack([gu, gv], dim=1)  # [M, 2, 3]
+    jac = torch.cat([-g, torch.linalg.cross(g, y[:, None].expand_as(g), dim=-1)], dim=-1)  # [M, 2, 6] px
+    metres = (obs.weight**0.5) * 2.0 / ((k.fx + k.fy) * inv_z)  # [M] a pixel's lateral metres at the depth, weighed
+    rows = torch.cat([jac, r[..., None]], dim=-1) * metres[:, None, None]  # [M, 2, 7]
+    huber = torch.where(ahead[:, None], (obs.huber_px / r.abs().clamp_min(1e-12)).clamp(max=1.0), 0.0)
+    return rows.reshape(-1, 7), huber.reshape(-1)
+
+
+def _observation_normal(src_to_ref: Tensor, obs: Observations, k: Intrinsics) -> Tensor:  # [7, 7] float64
+    """``[J^T W J | J^T W r]`` of the points' Huber-weighted reprojection rows."""
+    rows, weight = _observation_rows(src_to_ref, obs, k)
+    return (rows * weight[:, None]).T @ rows
 
 
 def _half(intrinsics: Intrinsics) -> Intrinsics:
@@ -490,14 +548,16 @@ def refine_device(
     s: IcpSettings,
     channels: Sequence[Tensor | None] | None = None,  # source_channels per level, where its reference has channels
     kernels: IcpKernels | None = None,  # compiled parts (``Kernels.icp``); None = this module's PyTorch code
+    observations: Observations | None = None,  # sparse points joining the finest level's steps
 ) -> Tensor:  # [4, 4] float64 source camera frame -> reference camera frame
     """The pose after every level's Gauss-Newton steps, with no check against the start.
 
     For callers that judge the result themselves: :func:`align_device` costs two more
-    full-resolution passes to compare it with the start.
+    full-resolution passes to compare it with the start. ``observations`` join the finest level
+    (one joint step after its own); the points then hold the pose where the start was right.
     """
     init = init_src_to_ref.to(device=depth.device, dtype=torch.float64)
-    return _refine(depth, intrinsics, reference, init, s, channels, kernels or IcpKernels())[0]
+    return _refine(depth, intrinsics, reference, init, s, channels, kernels or IcpKernels(), observations)[0]
 
 
 def _refine(
@@ -508,6 +568,7 @@ def _refine(
     s: IcpSettings,
     channels: Sequence[Tensor | None] | None,
     kernels: IcpKernels,
+    observations: Observations | None = None,
 ) -> tuple[Tensor, _LevelSource]:  # the pose [4, 4] float64, the finest level's source
     iterations = s.steps_for(intrinsics.width)
     if len(reference) != len(iterations):
@@ -523,10 +584,22 @@ def _refine(
         source = _LevelSource(src, None if channels is None else channels[i], weights[i])
         if kernels.steps is not None:
             pose = kernels.steps(pose, *source, ref, s, steps)
-            continue
-        for _ in range(steps):
-            pose = _gauss_newton_step(pose, source, ref, s)
+        else:
+            for _ in range(steps):
+                pose = _gauss_newton_step(pose, source, ref, s)
+    if observations is not None and iterations[-1] > 0:  # one joint step from the dense optimum
+        normal = _dense_normal(pose, source, reference[-1], s, kernels) + _observation_normal(pose, observations, k)
+        pose = _solve(normal, pose, s)
     return pose, source
+
+
+def _dense_normal(
+    pose: Tensor, source: _LevelSource, ref: IcpLevel, s: IcpSettings, kernels: IcpKernels
+) -> Tensor:  # [7, 7] float64
+    """The dense terms' ``[J^T W J | J^T W r]`` at ``pose``, compiled where the kernels have it."""
+    if kernels.terms is None:
+        return _normal_matrix(pose, source, ref, s)
+    return _terms(kernels.terms, pose, source, ref, s)[:49].reshape(7, 7)
 
 
 def _noise_weights(points: list[Tensor], noise: DepthNoise | None) -> list[Tensor | None]:  # per level [N]

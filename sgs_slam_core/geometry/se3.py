@@ -20,6 +20,7 @@ __all__ = [
     "quat_normalize",
     "quat_to_rotmat",
     "quat_xyzw_to_matrix",
+    "rotation_angle_deg",
     "rotmat_to_quat",
     "se3_exp",
     "se3_from_rt",
@@ -49,6 +50,12 @@ def quat_xyzw_to_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:  
             [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
         ]
     )
+
+
+def rotation_angle_deg(rot: np.ndarray) -> np.ndarray:  # [..., 3, 3] -> [...] degrees
+    """The angle of each rotation matrix (deg, in [0, 180])."""
+    cos = (np.trace(rot, axis1=-2, axis2=-1) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 def _check_last(x: Tensor, dims: tuple[int, ...], name: str) -> None:

@@ -49,6 +49,7 @@ from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.semantics import SemanticCodec
+from sgs_slam_core.slam.guard import TrackingState
 from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
 
 __all__ = ["MapJob", "PipelineStats", "SlamPipeline", "SlamSnapshot"]
@@ -94,12 +95,23 @@ class PipelineStats:
     dropped_frames: int = 0  # replaced before tracking (live mode) or arriving while paused
     dropped_jobs: int = 0  # mapping jobs replaced before mapping (live mode)
     tracking_failures: int = 0  # tracked, but flagged by the failure guard (not mapped)
+    tracking_state: TrackingState = "ok"  # of the last tracked frame
+    lost_events: int = 0  # times the camera became lost
+    relocalizations: int = 0  # times a lost camera was found again
+    frames_while_lost: int = 0  # frames tracked while lost (not mapped, pose held)
     tracking_errors: int = 0  # rejected by tracking (bad frame) or failed: no pose
     mapping_errors: int = 0
     map_steps: int = 0  # optimisation steps of the mapping jobs that published a map
     errors: int = 0  # tracking_errors + mapping_errors + listeners that raised
     last_error: str = ""
     latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=50))  # arrival -> pose (s)
+
+    def count_state(self, state: TrackingState) -> None:
+        """Count a tracked frame's tracking state (lost and found events, frames lost)."""
+        self.lost_events += int(state == "lost" and self.tracking_state != "lost")
+        self.relocalizations += int(state == "relocalized")
+        self.frames_while_lost += int(state == "lost")
+        self.tracking_state = state
 
     @property
     def map_steps_per_frame(self) -> float:
@@ -232,6 +244,7 @@ class SlamPipeline:
                 if outcome is not None:
                     self.stats.tracked += 1
                     self.stats.tracking_failures += int(outcome.failed)
+                    self.stats.count_state(outcome.state)
                     self.stats.latency_s.append(time.monotonic() - received_at)
                 self._cv.notify_all()
             if outcome is not None:  # still busy: a reset or an exclusive section waits for the hand-over
@@ -352,6 +365,7 @@ class SlamPipeline:
                 return False
             self._jobs.clear()  # handed over by a frame tracked before the reset
             self.slam.reset()
+            self.stats.tracking_state = "ok"
             self._cv.notify_all()
         return True
 

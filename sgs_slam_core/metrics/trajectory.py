@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgs_slam_core.errors import ShapeError
+from sgs_slam_core.geometry.se3 import rotation_angle_deg
 
 __all__ = ["AteResult", "RpeResult", "ate", "ate_paper", "rpe", "umeyama"]
 
@@ -118,6 +119,5 @@ def rpe(est_c2w: np.ndarray, gt_c2w: np.ndarray, delta: int = 1) -> RpeResult:
     rel_gt = np.linalg.inv(gt[:-delta]) @ gt[delta:]
     err = np.linalg.inv(rel_gt) @ rel_est
     trans = np.linalg.norm(err[:, :3, 3], axis=1)
-    cos = np.clip((np.trace(err[:, :3, :3], axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
-    rot = np.degrees(np.arccos(cos))
+    rot = rotation_angle_deg(err[:, :3, :3])
     return RpeResult(float(np.sqrt((trans**2).mean())), float(np.sqrt((rot**2).mean())), trans, rot)

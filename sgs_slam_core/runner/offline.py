@@ -51,7 +51,7 @@ _STOP_MESSAGE = "interrupted: finishing this frame, then writing the run folder 
 
 _CSV_FIELDS = ("frame", "dataset_index", "stamp_ns", "track_ms", "map_ms", "track_iterations", "track_converged",
                "track_residual_cm", "map_iterations", "added", "pruned", "gaussians", "keyframe", "window",
-               "tracking_failed", "reason")  # fmt: skip
+               "tracking_failed", "tracking_state", "reason")  # fmt: skip
 
 
 @dataclass
@@ -94,6 +94,7 @@ def _csv_row(step: StepResult, dataset_index: int) -> dict[str, Any]:
         "keyframe": int(step.map.keyframe),
         "window": len(step.map.window.keyframes) + 1 if step.map.window else 0,
         "tracking_failed": int(step.track.failed),
+        "tracking_state": step.track.state,
         "reason": step.track.failure_reason or "",
     }
 
@@ -222,9 +223,20 @@ def _stats(slam: Slam, loop: _Loop, config: SlamConfig) -> dict[str, Any]:
         **footprint(slam).as_metrics(),  # Gaussians and keyframes held, and their bytes
         "peak_memory_mb": _peak_memory_mb(slam.device),
         "tracking_failures": slam.failures,
+        **_lost_and_found(slam),
         "bad_frames": loop.bad_frames,
         "device": str(slam.device),
         "render_backend": resolve_backend(config.render.backend, slam.device),
+    }
+
+
+def _lost_and_found(slam: Slam) -> dict[str, int]:
+    """How often the camera was lost and relocalized, and the frames that came while it was lost."""
+    counts = slam.guard.counts()
+    return {
+        "tracking_lost_events": counts.lost_events,
+        "relocalizations": counts.relocalizations,
+        "frames_while_lost": counts.frames_while_lost,
     }
 
 

@@ -130,6 +130,8 @@ class SlamProgress:
         parts.append(footprint(slam).summary())
         if slam.failures:
             parts.append(f"{slam.failures} tracking failures")
+        if step.track.lost:
+            parts.append("LOST")
         self.bar.update(min(max(frame.index + 1, self.frames), self.bar.total), ", ".join(parts))  # dataset position
 
     def close(self) -> None:

@@ -40,6 +40,9 @@ METRIC_ROWS: tuple[tuple[str, str, float, str], ...] = (
     ("keyframe_mb", "keyframe images held (MB)", 1, "{:.1f}"),
     ("peak_memory_mb", "peak memory (MB)", 1, "{:.0f}"),
     ("tracking_failures", "tracking failures", 1, "{:.0f}"),
+    ("tracking_lost_events", "times lost", 1, "{:.0f}"),
+    ("relocalizations", "relocalizations", 1, "{:.0f}"),
+    ("frames_while_lost", "frames while lost", 1, "{:.0f}"),
 )
 
 

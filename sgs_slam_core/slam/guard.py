@@ -1,14 +1,34 @@
-"""Tracking-failure guard: flags frames whose tracking result jumps away from recent history."""
+"""Tracking-failure guard: judges each tracked pose and knows when the camera is lost.
+
+A pose fails when its depth residual or loss jumps away from the recent accepted frames, or when
+the frame's own features contradict it (evidence that does not move with the map: a map dragged
+along with a wrong pose still renders consistently with it). Failed frames are not mapped;
+``lost_after`` failures in a row mean the camera is lost, and it stays lost until a relocalized
+pose passes the same tests.
+"""
 
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
 from sgs_slam_core.config.sections import GuardSettings
 
-__all__ = ["TrackingGuard"]
+__all__ = ["GuardCounts", "TrackingGuard", "TrackingState"]
+
+TrackingState = Literal["ok", "lost", "relocalized"]  # relocalized: the frame that found the camera again
+
+
+@dataclass(frozen=True)
+class GuardCounts:
+    """How often tracking was lost and found again over a run."""
+
+    lost_events: int  # times the camera became lost
+    relocalizations: int  # times a lost camera was found again
+    frames_while_lost: int  # frames whose state was lost (the one that found it again excluded)
 
 
 class TrackingGuard:
@@ -19,11 +39,27 @@ class TrackingGuard:
         self._residuals: deque[float] = deque(maxlen=settings.history)
         self._losses: deque[float] = deque(maxlen=settings.history)
         self.seen = 0
+        self.state: TrackingState = "ok"
+        self._failures_in_row = 0
+        self._lost_events = 0
+        self._relocalizations = 0
+        self._frames_while_lost = 0
 
-    def check(self, residual_m: float, loss_per_pixel: float, valid_fraction: float) -> str | None:
+    @property
+    def lost(self) -> bool:
+        """True while the camera is lost (frames are then relocalized, not tracked)."""
+        return self.state == "lost"
+
+    def counts(self) -> GuardCounts:
+        """Lost events, relocalizations and frames lost so far."""
+        return GuardCounts(self._lost_events, self._relocalizations, self._frames_while_lost)
+
+    def check(
+        self, residual_m: float, loss_per_pixel: float, valid_fraction: float, agreement: float | None = None
+    ) -> str | None:
         """The reason the frame failed, or None. Accepted frames join the history."""
         self.seen += 1
-        reason = self.judge(residual_m, loss_per_pixel, valid_fraction)
+        reason = self.judge(residual_m, loss_per_pixel, valid_fraction, agreement)
         if reason is None:
             self.accept(residual_m, loss_per_pixel)
         return reason
@@ -33,19 +69,64 @@ class TrackingGuard:
         self._residuals.append(residual_m)
         self._losses.append(loss_per_pixel)
 
-    def judge(self, residual_m: float, loss_per_pixel: float, valid_fraction: float) -> str | None:
-        """The reason a tracking result would fail, or None; the history is left as it is."""
+    def judge(
+        self, residual_m: float, loss_per_pixel: float, valid_fraction: float, agreement: float | None = None
+    ) -> str | None:
+        """The reason a tracking result would fail, or None; the history is left as it is.
+
+        ``agreement``: the share of the frame's feature matches the pose explains (None: no
+        feature pose to check against).
+        """
         if not self.s.enabled:
             return None
+        return self._unexplained(residual_m, valid_fraction, agreement) or self._jump(residual_m, loss_per_pixel)
+
+    def _unexplained(self, residual_m: float, valid_fraction: float, agreement: float | None) -> str | None:
+        """Why the pose fails whatever the history: too little mapped, or the features contradict it."""
         if valid_fraction < self.s.min_valid_fraction:
             return f"only {valid_fraction:.1%} of pixels are measured and mapped"
         if not np.isfinite(residual_m):
             return "no pixel to track against"
-        if self.seen > self.s.warmup_frames and len(self._residuals) >= 2:
-            med_res = float(np.median(self._residuals))
-            med_loss = float(np.median(self._losses))
-            if residual_m > max(self.s.residual_jump * med_res, self.s.min_residual_m):
-                return f"depth residual {residual_m * 100:.1f} cm vs recent {med_res * 100:.1f} cm"
-            if med_loss > 0 and loss_per_pixel > self.s.loss_jump * med_loss and residual_m > self.s.min_residual_m:
-                return f"tracking loss {loss_per_pixel:.3g}/px vs recent {med_loss:.3g}/px"
+        if agreement is not None and agreement < self.s.min_feature_agreement:
+            return f"the pose explains {agreement:.0%} of the matches the features' own pose explains"
         return None
+
+    def _jump(self, residual_m: float, loss_per_pixel: float) -> str | None:
+        """Why the pose fails against the recent accepted frames' residuals and losses."""
+        if self.seen <= self.s.warmup_frames or len(self._residuals) < 2:
+            return None
+        med_res = float(np.median(self._residuals))
+        med_loss = float(np.median(self._losses))
+        if residual_m > max(self.s.residual_jump * med_res, self.s.min_residual_m):
+            return f"depth residual {residual_m * 100:.1f} cm vs recent {med_res * 100:.1f} cm"
+        if med_loss > 0 and loss_per_pixel > self.s.loss_jump * med_loss and residual_m > self.s.min_residual_m:
+            return f"tracking loss {loss_per_pixel:.3g}/px vs recent {med_loss:.3g}/px"
+        return None
+
+    def settle(self, failed: bool, located: bool = False) -> TrackingState:
+        """The tracking state after a frame tracked (not relocalized) with this outcome.
+
+        ``located``: the frame failed, but its features still place it against the last accepted
+        frame, so the camera is not lost (its failures in a row are neither reset nor added to).
+        """
+        if self.state == "lost":
+            self._frames_while_lost += 1
+            return self.state
+        if not failed:
+            self._failures_in_row = 0
+        elif not located:
+            self._failures_in_row += 1
+        if failed and self.s.lost_after and self._failures_in_row >= self.s.lost_after:
+            self.state = "lost"
+            self._lost_events += 1
+            self._frames_while_lost += 1
+        else:
+            self.state = "ok"
+        return self.state
+
+    def relocalized(self) -> TrackingState:
+        """A lost camera was found again by this frame: tracking goes on from it."""
+        self.state = "relocalized"
+        self._relocalizations += 1
+        self._failures_in_row = 0
+        return self.state

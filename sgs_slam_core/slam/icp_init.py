@@ -8,6 +8,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from sgs_slam_core.frame import CompactFrame
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.icp import IcpKernels, IcpLevel, IcpSettings, align_depth, icp_pyramid
 from sgs_slam_core.geometry.views import views_near
@@ -108,6 +109,24 @@ class IcpInit:
         ref = self._reference
         if ref is None or ref.intrinsics != intrinsics:
             return predicted_c2w, None
+        c2w, outcome = self._align(ref, depth, intrinsics, predicted_c2w)
+        self._reference_failed = not outcome.used
+        return c2w, outcome
+
+    def refine_against(
+        self, reference: CompactFrame, depth: Tensor, intrinsics: Intrinsics, predicted_c2w: np.ndarray
+    ) -> tuple[np.ndarray, IcpOutcome | None]:  # depth [H, W] m -> c2w [4, 4]
+        """As :meth:`refine`, against a stored keyframe instead of the kept reference (which stays)."""
+        if reference.intrinsics != intrinsics:
+            return predicted_c2w, None
+        ref_depth = torch.as_tensor(reference.depth_m, device=depth.device)
+        return self._align(
+            _Reference(ref_depth, intrinsics, np.linalg.inv(reference.w2c)), depth, intrinsics, predicted_c2w
+        )
+
+    def _align(
+        self, ref: _Reference, depth: Tensor, intrinsics: Intrinsics, predicted_c2w: np.ndarray
+    ) -> tuple[np.ndarray, IcpOutcome]:
         init = torch.as_tensor(np.linalg.inv(ref.c2w) @ predicted_c2w, dtype=torch.float64, device=depth.device)
         with stage("icp"):
             if ref.levels is None:
@@ -115,7 +134,6 @@ class IcpInit:
                 ref.levels = icp_pyramid(ref.depth, ref.intrinsics, levels, self.kernels.level)
             result = align_depth(depth, intrinsics, ref.levels, init, self.settings, self.kernels)
         used = result.inlier_fraction >= self.min_inliers and np.isfinite(result.rms_m)
-        self._reference_failed = not used
         outcome = IcpOutcome(used, result.inlier_fraction, result.rms_m)
         if not used:
             return predicted_c2w, outcome

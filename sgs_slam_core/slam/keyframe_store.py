@@ -131,6 +131,10 @@ class KeyframeStore(Sequence[CompactFrame]):
     def __iter__(self) -> Iterator[CompactFrame]:
         return (e.frame for e in self._entries)
 
+    def find(self, index: int) -> CompactFrame | None:
+        """The held keyframe taken at frame ``index``, or None (never one, or let go)."""
+        return next((e.frame for e in self._entries if e.frame.index == index), None)
+
     # ------------------------------------------------------------------ state
     @property
     def nbytes(self) -> int:

@@ -1,4 +1,4 @@
-"""Where tracking starts: constant velocity, refined by depth ICP against a recent tracked frame.
+"""Where tracking starts: constant velocity, the features' pose where the two disagree, refined by depth ICP.
 
 Only accepted poses count; a rejected frame is tracked again from the fallback start.
 """
@@ -6,27 +6,45 @@ Only accepted poses count; a rejected frame is tracked again from the fallback s
 from __future__ import annotations
 
 from collections import deque
+from typing import NamedTuple
 
 import numpy as np
 import torch
 
-from sgs_slam_core.config.sections import MotionSettings
+from sgs_slam_core.config.sections import FeatureSettings, MotionSettings
+from sgs_slam_core.frame import CompactFrame, Frame
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.geometry.icp import IcpKernels
+from sgs_slam_core.slam.feature_odometry import FeatureOdometry, FeatureView
 from sgs_slam_core.slam.icp_init import IcpInit, ReferencePolicy
 from sgs_slam_core.slam.pose import predict_constant_velocity
 
-__all__ = ["MotionModel"]
+__all__ = ["MotionModel", "Start"]
+
+
+class Start(NamedTuple):
+    """A frame's starting pose and where it came from."""
+
+    c2w: np.ndarray  # [4, 4]
+    from_features: bool  # the feature pose replaced the constant-velocity guess
 
 
 class MotionModel:
-    """The motion prior of one run: the poses it has seen, the camera's frame interval, the ICP reference."""
+    """The motion prior of one run: the poses it has seen, the frame interval, the ICP and feature references."""
 
     def __init__(
-        self, settings: MotionSettings, initial_c2w: np.ndarray, icp_kernels: IcpKernels | None = None
+        self,
+        settings: MotionSettings,
+        initial_c2w: np.ndarray,
+        icp_kernels: IcpKernels | None = None,
+        features: FeatureSettings | None = None,
     ) -> None:
-        """``icp_kernels``: the ICP's compiled parts (``Kernels.icp``); None = ``geometry.icp``'s PyTorch code."""
+        """``icp_kernels``: the ICP's compiled parts (``Kernels.icp``); None = ``geometry.icp``'s PyTorch code.
+
+        ``features``: the feature start's settings (None or disabled: no feature start).
+        """
         self.settings = settings
+        self.features = None if features is None or not features.enabled else FeatureOdometry(features)
         self.initial_c2w = initial_c2w
         self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=2)  # (stamp_ns, c2w) of this run
         self._resumed: list[np.ndarray] = []  # last two c2w of a loaded map: it goes on moving
@@ -39,15 +57,36 @@ class MotionModel:
         """Continue from a saved run's last poses (c2w [4, 4], oldest first)."""
         self._resumed = [np.asarray(p, dtype=np.float64).copy() for p in poses[-2:]]
 
-    def predict(self, stamp_ns: int, data: FrameTensors) -> np.ndarray:  # c2w [4, 4]
-        """The starting pose of a frame taken at ``stamp_ns``; ``data`` is its depth for the ICP."""
+    def view(self, frame: Frame) -> FeatureView | None:
+        """``frame``'s features and the pose they give it against the last accepted frame (None: off)."""
+        return None if self.features is None else self.features.view(frame)
+
+    @property
+    def last_c2w(self) -> np.ndarray:  # [4, 4]
+        """The last accepted pose (a resumed map's last, or the initial pose before any)."""
+        poses = [*self._resumed, *(c2w for _, c2w in self._history)]
+        return (poses[-1] if poses else self.initial_c2w).copy()
+
+    def predict(self, stamp_ns: int, data: FrameTensors, view: FeatureView | None = None) -> np.ndarray:  # c2w [4, 4]
+        """The starting pose of a frame taken at ``stamp_ns`` (:meth:`start`'s pose)."""
+        return self.start(stamp_ns, data, view).c2w
+
+    def start(self, stamp_ns: int, data: FrameTensors, view: FeatureView | None = None) -> Start:
+        """The starting pose of a frame taken at ``stamp_ns``; ``data`` is its depth for the ICP.
+
+        ``view`` (:meth:`view` of the frame): its feature pose replaces the constant-velocity guess
+        where the guess explains fewer of its inlier matches than ``features.start_agreement``.
+        """
         poses = [*self._resumed, *(c2w for _, c2w in self._history)]
         prev = poses[-1] if poses else self.initial_c2w
         prev2 = poses[-2] if len(poses) > 1 and self.settings.constant_velocity else None
         c2w = predict_constant_velocity(prev, prev2, self._motion_fraction(stamp_ns))
+        from_features = view is not None and view.c2w is not None and self._disagree(c2w, view)
+        if from_features:
+            c2w = view.c2w
         if self._icp is not None and self._intervals_since_last(stamp_ns) >= self.settings.icp_min_gap:
             c2w, _ = self._icp.refine(_measured_depth(data), data.intrinsics, c2w)
-        return c2w
+        return Start(c2w, from_features)
 
     def fallback(self, data: FrameTensors) -> np.ndarray | None:  # c2w [4, 4]
         """A second start for a frame whose tracking failed; None before any pose.
@@ -62,14 +101,44 @@ class MotionModel:
             c2w, _ = self._icp.refine(_measured_depth(data), data.intrinsics, c2w)
         return c2w
 
-    def observe(self, stamp_ns: int, c2w: np.ndarray, data: FrameTensors | None) -> None:
-        """A frame's pose; ``data`` (a tracked frame the guard accepted) becomes the next ICP reference."""
+    def refine(self, data: FrameTensors, c2w: np.ndarray, keyframe: CompactFrame | None = None) -> np.ndarray:
+        """``c2w`` [4, 4] refined by the depth ICP against ``keyframe``, or else the ICP's reference frame.
+
+        Unchanged when the ICP is off or finds too few correspondences (a relocalization's candidate
+        pose, from the features of ``keyframe`` or of the last accepted frame).
+        """
+        if self._icp is None:
+            return c2w
+        if keyframe is None:
+            return self._icp.refine(_measured_depth(data), data.intrinsics, c2w)[0]
+        return self._icp.refine_against(keyframe, _measured_depth(data), data.intrinsics, c2w)[0]
+
+    def _disagree(self, guess: np.ndarray, view: FeatureView) -> bool:  # guess: c2w [4, 4]
+        """Whether the guess explains too few of the feature pose's inlier matches to stay the start."""
+        s = self.features.settings if self.features is not None else None
+        if s is None:
+            return False
+        explained = view.agreement(guess, s.reprojection_px)
+        return explained is not None and explained < s.start_agreement
+
+    def observe(
+        self, stamp_ns: int, c2w: np.ndarray, data: FrameTensors | None, view: FeatureView | None = None
+    ) -> None:
+        """A frame's pose; ``data`` and ``view`` (a tracked frame the guard accepted) become the next references."""
         if self._history and stamp_ns > self._history[-1][0]:
             gap = stamp_ns - self._history[-1][0]
             self._min_interval_ns = gap if self._min_interval_ns is None else min(gap, self._min_interval_ns)
         if self._icp is not None and data is not None:
             self._icp.remember(_measured_depth(data), data.intrinsics, c2w)
+        if self.features is not None and view is not None:
+            self.features.accept(view, c2w)
         self._history.append((stamp_ns, c2w))
+
+    def restart(self, stamp_ns: int, c2w: np.ndarray, data: FrameTensors | None, view: FeatureView | None) -> None:
+        """Go on from a relocalized pose: no velocity across the time the camera was lost."""
+        self._history.clear()
+        self._resumed = []
+        self.observe(stamp_ns, c2w, data, view)
 
     @property
     def uses_icp(self) -> bool:

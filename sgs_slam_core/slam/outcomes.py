@@ -7,6 +7,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from sgs_slam_core.frame_data import FrameTensors
+from sgs_slam_core.slam.guard import TrackingState
 from sgs_slam_core.slam.keyframes import Window
 from sgs_slam_core.slam.map_frame import MapFrameChoice
 from sgs_slam_core.slam.mapper import MapStats
@@ -27,6 +28,12 @@ class TrackOutcome:
     time_s: float
     frame_data: FrameTensors | None = field(default=None, repr=False, compare=False)  # uploaded once, mapped too
     map_frame: MapFrameChoice | None = None  # how the map frame was chosen (the run's first frame)
+    state: TrackingState = "ok"  # lost: the camera is lost, the pose is the last accepted one
+
+    @property
+    def lost(self) -> bool:
+        """True when the camera was lost at this frame (its pose is not an estimate)."""
+        return self.state == "lost"
 
     @property
     def failed(self) -> bool:

@@ -7,9 +7,9 @@ no locks and starts no threads: :mod:`sgs_slam_core.live.pipeline` owns the conc
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
-from dataclasses import replace
 
 import numpy as np
 import torch
@@ -30,19 +30,21 @@ from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.densify import densify_frame, scene_radius
 from sgs_slam_core.slam.edits import EditLocks
-from sgs_slam_core.slam.guard import TrackingGuard
+from sgs_slam_core.slam.guard import TrackingGuard, TrackingState
 from sgs_slam_core.slam.heap import keep_freed_heap, release_free_heap
 from sgs_slam_core.slam.keyframe_store import KeyframeStore
 from sgs_slam_core.slam.keyframes import is_keyframe
+from sgs_slam_core.slam.localization import Localizer
 from sgs_slam_core.slam.map_frame import MapFrameChoice, MapFramePolicy
 from sgs_slam_core.slam.mapper import MapStats, WindowFrame, map_window
 from sgs_slam_core.slam.motion import MotionModel
 from sgs_slam_core.slam.outcomes import MapOutcome, StepResult, TrackOutcome
-from sgs_slam_core.slam.tracker import TrackResult
 from sgs_slam_core.slam.trackers import build_tracker
 from sgs_slam_core.slam.window import choose_window, upload_window
 
 __all__ = ["MapOutcome", "Slam", "StepResult", "TrackOutcome", "resolve_device"]
+
+log = logging.getLogger(__name__)
 
 
 def resolve_device(name: str) -> torch.device:
@@ -92,9 +94,10 @@ class Slam:
         self.initial_c2w = np.eye(4) if self.given_c2w is None else self.given_c2w.copy()
         self.map_frame = MapFramePolicy(c.map_frame)
         self.kernels = build_kernels(c.render, self.device)  # render, losses and steps for this device, chosen once
-        self.motion = MotionModel(c.motion, self.initial_c2w, self.kernels.icp)
+        self.motion = MotionModel(c.motion, self.initial_c2w, self.kernels.icp, c.features)
         self.tracker = build_tracker(c.tracking, self.kernels)
         self.guard = TrackingGuard(c.guard)
+        self.localizer = Localizer(c, self.motion, self.tracker, self.guard, self.kernels)
         self.keyframes = KeyframeStore(c.keyframes)  # capped: the best-covered view leaves
         self.edits = EditLocks()
         self.gaussians = GaussianMap.empty(self.codec.num_channels, device=self.device)
@@ -106,6 +109,7 @@ class Slam:
         self.torch_rng = torch.Generator(device="cpu").manual_seed(c.seed)
         self.frames_processed = 0
         self.failures = 0
+        self._lost_since: int | None = None  # frame index at which the camera was lost, while lost
         self._last_mapped: int | None = None  # index of the last frame mapping ran on
         self._labels_stale = False  # classes last re-decoded at a keyframe (live), mapped since
         self._loaded_trajectory: list[tuple[int, int, np.ndarray]] = []  # a loaded map's history, saved again
@@ -132,50 +136,50 @@ class Slam:
     def track(self, frame: Frame, newer_frame_waiting: Callable[[], bool] | None = None) -> TrackOutcome:
         """Estimate the pose of ``frame`` against the current map (a run's first frame gets the map frame's pose).
 
+        While the camera is lost (the guard's ``lost_after`` failures in a row) the frame is
+        relocalized instead, and its pose is the last accepted one until that succeeds.
         ``newer_frame_waiting`` (live): once it returns True, tracking ends after its minimum steps.
         """
         self._validate(frame)
         t0, index = time.perf_counter(), self.frames_processed
         self._see_labels(frame)
-        data, result, failure, choice = None, None, None, None
+        data, view, result, failure, choice = None, None, None, None, None
+        state: TrackingState = self.guard.state
         if index == 0 and len(self.gaussians) == 0:
             choice = self._start(frame)
             c2w = choice.c2w
+            view = self.motion.view(frame)  # the next frame's feature reference
         elif self.config.tracking.use_gt_pose:
             c2w = self._gt_in_map_frame(frame.gt_c2w)
         elif len(self.gaussians) == 0:
             c2w = self.trajectory[-1][2].copy() if self.trajectory else self.initial_c2w.copy()  # no map yet
         else:
             data = self._frame_tensors(frame, index)
-            init_c2w = self.motion.predict(frame.stamp_ns, data)
-            use_sem = frame.labels is not None and self.config.tracking.weight_semantic > 0
-            result = self.tracker.track(self.gaussians, data, np.linalg.inv(init_c2w), use_sem, newer_frame_waiting)
-            failure = self.guard.check(result.depth_residual_m, result.loss_per_pixel, result.valid_fraction)
-            if failure is not None and self.config.guard.retry:
-                result, failure = self._retried(data, use_sem, result, failure)
-            c2w = np.linalg.inv(result.w2c)
+            view = self.motion.view(frame)
+            found = self.localizer.locate(self.gaussians, self.keyframes, frame, data, view, newer_frame_waiting)
+            result, failure, state = found.result, found.failure, found.state
+            c2w = self.motion.last_c2w if state == "lost" else np.linalg.inv(result.w2c)
         if failure is None and data is None and self.motion.uses_icp:
             data = self._frame_tensors(frame, index)  # the next frame's ICP reference; mapping reuses it
-        if failure is None:  # a failed pose would become the prior, and a lost camera would run away
-            self.motion.observe(frame.stamp_ns, c2w, data)
+        if state == "relocalized":  # no velocity across the time the camera was lost
+            self.motion.restart(frame.stamp_ns, c2w, data, view)
+        elif failure is None:  # a failed pose would become the prior, and a lost camera would run away
+            self.motion.observe(frame.stamp_ns, c2w, data, view)
         self._append_pose(index, frame.stamp_ns, c2w)
         self.failures += int(failure is not None)
-        return TrackOutcome(index, frame.stamp_ns, c2w, result, failure, time.perf_counter() - t0, data, choice)
+        self._say(index, state, failure)
+        elapsed = time.perf_counter() - t0
+        return TrackOutcome(index, frame.stamp_ns, c2w, result, failure, elapsed, data, choice, state)
 
-    def _retried(
-        self, data: FrameTensors, use_sem: bool, failed: TrackResult, failure: str
-    ) -> tuple[TrackResult, str | None]:
-        """A failed frame tracked again from the motion model's fallback start; the first result if that fails too."""
-        start = self.motion.fallback(data)
-        if start is None:
-            return failed, failure
-        result = self.tracker.track(self.gaussians, data, np.linalg.inv(start), use_sem)
-        if self.guard.judge(result.depth_residual_m, result.loss_per_pixel, result.valid_fraction) is not None:
-            return failed, failure
-        self.guard.accept(result.depth_residual_m, result.loss_per_pixel)
-        renders = (failed.renders or failed.iterations) + (result.renders or result.iterations)
-        spent = {"iterations": failed.iterations + result.iterations, "renders": renders}
-        return replace(result, time_s=failed.time_s + result.time_s, **spent), None
+    def _say(self, index: int, state: TrackingState, failure: str | None) -> None:
+        """Log when the camera is lost and when it is found again."""
+        if state == "lost" and self._lost_since is None:
+            self._lost_since = index
+            log.warning("tracking lost at frame %d (%s): not mapping until relocalized", index, failure)
+        elif state == "relocalized":
+            lost = index - (self._lost_since if self._lost_since is not None else index)
+            log.warning("relocalized at frame %d after %d frames lost", index, lost)
+            self._lost_since = None
 
     def register(self, frame: Frame, c2w: np.ndarray) -> TrackOutcome:
         """Accept a pose estimated elsewhere (a separate tracking process) for ``frame``."""

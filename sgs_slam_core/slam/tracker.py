@@ -20,7 +20,7 @@ from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.slam.adam import FusedAdam
 from sgs_slam_core.slam.pose import PoseParameters
 
-__all__ = ["TrackRendering", "TrackResult", "track"]
+__all__ = ["TrackRendering", "TrackResult", "judge_pose", "track"]
 
 
 @dataclass(frozen=True)
@@ -93,6 +93,37 @@ def track(
         with stage("track.step"):
             adam.step()
     return best.result(pose, init_w2c, it, converged, frame.depth.numel(), t0)
+
+
+def judge_pose(
+    gaussians: GaussianMap,
+    frame: FrameTensors,
+    w2c: np.ndarray,  # [4, 4] float64
+    s: TrackingSettings,
+    kernels: Kernels,
+    use_semantics: bool,
+) -> TrackResult:
+    """The tracking loss of ``frame`` at ``w2c`` (one rendering, no step): a pose found elsewhere, judged.
+
+    Any tracker's result carries the same quantities, so the guard judges this pose as it judges a
+    tracked one; the rendering goes with it for densification.
+    """
+    t0 = time.perf_counter()
+    fixed = gaussians.detach()
+    with stage("track.render"), torch.no_grad():
+        pose = torch.as_tensor(w2c, dtype=torch.float32, device=fixed.device)
+        out = kernels.render(fixed, frame.intrinsics, pose, with_semantics=use_semantics)
+    with stage("track.loss"), torch.no_grad():
+        loss = kernels.tracking_loss(out, frame, s, use_semantics)
+        stats = torch.stack([loss.total.double(), loss.pixels.double(), loss.depth_residual_m.double()])
+    value, pixels, residual = (float(v) for v in stats.tolist())
+    elapsed = time.perf_counter() - t0
+    if pixels == 0:
+        return TrackResult(w2c.copy(), 0, False, float("inf"), 0.0, float("inf"), 0.0, elapsed, 1)
+    fraction = pixels / frame.depth.numel()
+    return TrackResult(
+        w2c.copy(), 0, True, value, value / pixels, residual, fraction, elapsed, 1, TrackRendering(gaussians, out)
+    )
 
 
 @dataclass

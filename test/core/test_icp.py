@@ -10,7 +10,14 @@ import torch
 
 from sgs_slam_core.errors import ShapeError
 from sgs_slam_core.geometry.camera import Intrinsics
-from sgs_slam_core.geometry.icp import IcpSettings, align_depth, icp_pyramid
+from sgs_slam_core.geometry.icp import (
+    IcpSettings,
+    Observations,
+    _observation_rows,
+    align_depth,
+    icp_pyramid,
+    refine_device,
+)
 from sgs_slam_core.geometry.se3 import se3_exp
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.synthetic.primitives import Box, RoomShell
@@ -172,3 +179,57 @@ def test_a_channel_pyramid_of_the_finest_levels_ends_a_full_one():
     assert all(torch.equal(a, b) for a, b in zip(full[1:], finest, strict=True))
     full, finest = source_channels(image, 3), source_channels(image, 1)
     assert torch.equal(full[-1], finest[0])
+
+
+def wall_observations(src_c2w: np.ndarray, weight: float = 10.0) -> Observations:
+    """Points on the wall (reference frame = the identity camera) and where the camera at ``src_c2w`` sees them."""
+    rng = np.random.default_rng(0)
+    points = np.stack([rng.uniform(-1.0, 1.0, 60), rng.uniform(-0.8, 0.8, 60), np.full(60, 3.0)], axis=1)
+    cam = (points - src_c2w[:3, 3]) @ src_c2w[:3, :3]  # into the source camera
+    pixels = np.stack([cam[:, 0] / cam[:, 2] * K.fx + K.cx, cam[:, 1] / cam[:, 2] * K.fy + K.cy], axis=1)
+    return Observations(torch.as_tensor(points), torch.as_tensor(pixels), weight, 2.0)
+
+
+def test_observation_rows_are_the_derivative_of_the_reprojection():
+    """At the pose the pixels were seen from (residuals 0, so the rows' metre scale is a constant there)."""
+    src_to_ref = pose((0.02, -0.01, 0.03), (1.0, -2.0, 0.5))
+    obs = wall_observations(src_to_ref)  # the reference camera is the identity
+    src_to_ref = torch.as_tensor(src_to_ref)
+    rows, _ = _observation_rows(src_to_ref, obs, K)
+    eps = 1e-6
+    for j in range(6):
+        xi = torch.zeros(6, dtype=torch.float64)
+        xi[j] = eps
+        plus, _ = _observation_rows(se3_exp(xi) @ src_to_ref, obs, K)
+        minus, _ = _observation_rows(se3_exp(-xi) @ src_to_ref, obs, K)
+        numeric = (plus[:, 6] - minus[:, 6]) / (2 * eps)
+        torch.testing.assert_close(rows[:, j], numeric, rtol=1e-4, atol=1e-7)
+
+
+def test_points_hold_the_slide_a_wall_leaves_free():
+    """The flat wall again: feature points seen by the camera fix the slide the depth cannot."""
+    motion = pose((0.0, 0.0, 0.04), (0.0, 0.0, 0.0))
+    init = pose((0.03, 0.0, 0.0), (0.0, 0.0, 0.0))
+    ref = icp_pyramid(room_depth(np.eye(4), WALL), K, len(DEFAULT.steps_for(K.width)))
+    obs = wall_observations(motion)
+    res = refine_device(room_depth(motion, WALL), K, ref, torch.as_tensor(init), DEFAULT, observations=obs)
+    trans, rot = errors(res.numpy(), motion)
+    assert trans < 2e-3 and rot < 0.05  # the slide is gone, the distance kept
+    assert abs(res[2, 3].item() - 0.04) < 1e-3
+
+
+def test_the_compiled_terms_give_the_same_joint_steps():
+    from sgs_slam_core.kernels.cpu.extensions import GAUSS_NEWTON
+    from sgs_slam_core.kernels.cpu.gauss_newton import ICP_KERNELS
+
+    if not GAUSS_NEWTON.is_available():
+        pytest.skip(GAUSS_NEWTON.unavailable_reason())
+    motion = pose((0.01, 0.0, 0.04), (0.5, 0.0, 0.0))
+    init = torch.as_tensor(pose((0.03, 0.0, 0.0), (0.0, 0.0, 0.0)))
+    ref = icp_pyramid(room_depth(np.eye(4), WALL), K, len(DEFAULT.steps_for(K.width)))
+    obs = wall_observations(motion)
+    depth = room_depth(motion, WALL)
+    slow = refine_device(depth, K, ref, init, DEFAULT, observations=obs)
+    fast = refine_device(depth, K, ref, init, DEFAULT, kernels=ICP_KERNELS, observations=obs)
+    assert torch.allclose(fast, slow, atol=1e-5)
+    assert errors(fast.numpy(), motion)[0] < 2e-3

@@ -13,6 +13,7 @@ from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.errors import FrameError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.metrics import ConfusionMatrix, ate
+from sgs_slam_core.slam.motion import Start
 from sgs_slam_core.slam.pose import predict_constant_velocity
 from sgs_slam_core.slam.system import Slam
 
@@ -142,16 +143,19 @@ def test_tracking_failure_is_flagged_and_the_map_kept(tiny):
 
 
 @pytest.mark.parametrize("retry", [True, False])
-def test_a_failed_frame_is_tracked_again_from_the_last_accepted_pose(tiny, retry):
+@pytest.mark.parametrize("features", [True, False])
+def test_a_failed_frame_is_tracked_again_from_the_features_or_the_last_accepted_pose(tiny, retry, features):
+    """The second start is the features' pose where they have one, else the last accepted pose."""
     adam = "tracking.method=adam"  # its iterations count both attempts
     overrides = [*FAST_SLAM, adam, "guard.warmup_frames=1", f"guard.retry={str(retry).lower()}"]
+    overrides += [f"features.enabled={str(features).lower()}", "guard.lost_after=0"]
     slam = Slam(load_config("synthetic", overrides=overrides), tiny.label_table)
     for i in range(4):
         slam.process(tiny[i])
     off = np.eye(4)
     off[:3, 3] = [0.6, 0.0, 0.0]  # a start far off, as after a reversal the motion prior is
-    predict = slam.motion.predict
-    slam.motion.predict = lambda stamp, data: predict(stamp, data) @ off
+    start = slam.motion.start
+    slam.motion.start = lambda stamp, data, view=None: Start(start(stamp, data, None).c2w @ off, False)
     step = slam.process(tiny[4])
     assert step.track.failed is not retry
     gt = np.linalg.inv(tiny[0].gt_c2w) @ tiny[4].gt_c2w

@@ -11,6 +11,7 @@ from sgs_slam_core.config.sections import TrackingSettings
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.kernels.base import Kernels
+from sgs_slam_core.slam.features import Landmarks
 from sgs_slam_core.slam.tracker import TrackResult, track
 
 __all__ = ["AdamTracker"]
@@ -33,7 +34,11 @@ class AdamTracker:
         init_w2c: np.ndarray,  # [4, 4] float64
         use_semantics: bool,
         newer_frame_waiting: Callable[[], bool] | None = None,
+        landmarks: Landmarks | None = None,
     ) -> TrackResult:
-        """Adam from ``init_w2c``, keeping the best evaluated pose (one render per step)."""
+        """Adam from ``init_w2c``, keeping the best evaluated pose (one render per step).
+
+        ``landmarks`` are not used: the paper's tracker optimises the rendering loss alone.
+        """
         result = track(gaussians, frame, init_w2c, self.settings, self.kernels, use_semantics, newer_frame_waiting)
         return replace(result, renders=result.iterations)

@@ -9,6 +9,7 @@ import numpy as np
 
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.slam.features import Landmarks
 from sgs_slam_core.slam.tracker import TrackResult
 
 __all__ = ["Tracker"]
@@ -24,9 +25,11 @@ class Tracker(Protocol):
         init_w2c: np.ndarray,  # [4, 4] float64, the motion model's prediction
         use_semantics: bool,
         newer_frame_waiting: Callable[[], bool] | None = None,
+        landmarks: Landmarks | None = None,
     ) -> TrackResult:
         """The pose of ``frame`` and how tracking went.
 
         ``newer_frame_waiting`` (live): once it returns True the tracker ends as soon as it may.
+        ``landmarks``: map points the frame's features see, which a tracker may hold the pose to.
         """
         ...

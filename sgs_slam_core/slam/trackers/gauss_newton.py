@@ -22,6 +22,7 @@ from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.icp import (
     IcpLevel,
+    Observations,
     align_device,
     channel_pyramid,
     icp_pyramid,
@@ -32,6 +33,7 @@ from sgs_slam_core.geometry.se3 import se3_inverse
 from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.render.output import RenderOutput
+from sgs_slam_core.slam.features import Landmarks
 from sgs_slam_core.slam.tracker import TrackRendering, TrackResult, track
 
 __all__ = ["GaussNewtonTracker"]
@@ -60,11 +62,13 @@ class GaussNewtonTracker:
         init_w2c: np.ndarray,  # [4, 4] float64
         use_semantics: bool,
         newer_frame_waiting: Callable[[], bool] | None = None,
+        landmarks: Landmarks | None = None,
     ) -> TrackResult:
         """Gauss-Newton from ``init_w2c`` against the map rendered there.
 
         ``newer_frame_waiting`` matters only to the optional Adam steps: the solve itself costs a
-        fixed, small number of renders.
+        fixed, small number of renders. ``landmarks`` join the finest level's steps as reprojection
+        terms, each weighing ``gauss_newton.feature_weight`` pixels (0: not used).
         """
         t0 = time.perf_counter()
         fixed = gaussians.detach()
@@ -75,7 +79,8 @@ class GaussNewtonTracker:
             with stage("track.render"), torch.no_grad():
                 start = self.kernels.render(fixed, frame.intrinsics, init.float(), with_semantics=use_semantics)
             return self._judge(gaussians, frame, (init, start), use_semantics, init_w2c, 0, t0, at_start=True)
-        w2c, start = self._solve(fixed, frame, init, semantic, use_semantics and self.gn.keep_start)
+        landmarks = landmarks if landmarks is not None and len(landmarks) and self.gn.feature_weight > 0 else None
+        w2c, start = self._solve(fixed, frame, init, semantic, use_semantics and self.gn.keep_start, landmarks)
         if self.gn.adam_steps > 0:
             scale = self.gn.adam_lr_scale
             a = self.settings.adam
@@ -98,7 +103,13 @@ class GaussNewtonTracker:
         return self._judge(gaussians, frame, (w2c, start), use_semantics, init_w2c, steps, t0)
 
     def _solve(
-        self, gaussians: GaussianMap, frame: FrameTensors, w2c: Tensor, semantic: bool, judged_semantics: bool
+        self,
+        gaussians: GaussianMap,
+        frame: FrameTensors,
+        w2c: Tensor,
+        semantic: bool,
+        judged_semantics: bool,
+        landmarks: Landmarks | None,
     ) -> tuple[Tensor, RenderOutput]:
         """The aligned world-to-camera pose [4, 4] float64 (on the device), and the rendering at the start.
 
@@ -118,7 +129,7 @@ class GaussNewtonTracker:
                 rendered.append(self.kernels.render(gaussians, k, w2c.float(), with_semantics=with_semantics))
             with stage("track.solve"):
                 reference = self._reference(rendered[-1], k, levels, semantic)
-                aligned = self._align(depth, k, reference, eye, sources)
+                aligned = self._align(depth, k, reference, eye, sources, self._observations(landmarks, w2c))
                 w2c = se3_inverse(aligned) @ w2c  # the frame's camera -> the rendered camera
         return w2c, rendered[0]  # renders >= 1: the settings check it
 
@@ -129,11 +140,25 @@ class GaussNewtonTracker:
         reference: list[IcpLevel],
         start: Tensor,  # [4, 4] float64
         sources: list[Tensor | None] | None,
+        observations: Observations | None,
     ) -> Tensor:  # [4, 4] float64 the frame's camera -> the rendered camera
-        """The alignment; with ``keep_start`` unchecked against its start, which :meth:`_judge` then does."""
-        if self.gn.keep_start:
-            return refine_device(depth, k, reference, start, self.icp, sources, self.kernels.icp)
+        """The alignment, checked against its start unless :meth:`_judge` does (``keep_start``).
+
+        Not checked either with ``observations``: the feature matches hold the pose where the start
+        was right.
+        """
+        if self.gn.keep_start or observations is not None:
+            return refine_device(depth, k, reference, start, self.icp, sources, self.kernels.icp, observations)
         return align_device(depth, k, reference, start, self.icp, sources, self.kernels.icp).src_to_ref
+
+    def _observations(self, landmarks: Landmarks | None, w2c: Tensor) -> Observations | None:  # w2c [4, 4]
+        """The landmarks in the camera frame of the rendering at ``w2c``, as the alignment's observations."""
+        if landmarks is None:
+            return None
+        points = torch.as_tensor(landmarks.points, dtype=torch.float64, device=w2c.device)
+        pixels = torch.as_tensor(landmarks.pixels, dtype=torch.float64, device=w2c.device)
+        camera = points @ w2c[:3, :3].T + w2c[:3, 3]
+        return Observations(camera, pixels, self.gn.feature_weight, landmarks.huber_px)
 
     def _reference(self, out: RenderOutput, k: Intrinsics, levels: int, semantic: bool) -> list[IcpLevel]:
         """The rendering as the alignment's reference, where the silhouette is confident.

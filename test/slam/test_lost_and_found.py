@@ -1,0 +1,129 @@
+"""The guard's lost state, the keyframes' relocalization candidates, and a kidnapped camera found again."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import numpy as np
+import pytest
+
+from sgs_slam_core.config import load_config
+from sgs_slam_core.config.sections import FeatureSettings, GuardSettings, KeyframeSettings
+from sgs_slam_core.frame import CompactFrame
+from sgs_slam_core.geometry.se3 import rotation_angle_deg
+from sgs_slam_core.slam.feature_odometry import FeatureView
+from sgs_slam_core.slam.features import extract_features
+from sgs_slam_core.slam.guard import TrackingGuard
+from sgs_slam_core.slam.keyframe_store import KeyframeStore
+from sgs_slam_core.slam.relocalization import Relocalizer
+from sgs_slam_core.slam.system import Slam
+
+from .views import poses, room_frame
+
+
+def test_failures_in_a_row_lose_the_camera_until_it_is_relocalized():
+    guard = TrackingGuard(GuardSettings(lost_after=2))
+    assert guard.settle(False) == "ok"
+    assert guard.settle(True) == "ok"  # one failure: a blurred frame, not a lost camera
+    assert guard.settle(False) == "ok"
+    assert guard.settle(True) == "ok" and guard.settle(True) == "lost" and guard.lost
+    assert guard.settle(False) == "lost"  # only a relocalization ends it
+    assert guard.relocalized() == "relocalized" and not guard.lost
+    assert guard.settle(False) == "ok"
+    counts = guard.counts()
+    assert (counts.lost_events, counts.relocalizations, counts.frames_while_lost) == (1, 1, 2)
+    never = TrackingGuard(GuardSettings(lost_after=0))
+    assert all(never.settle(True) == "ok" for _ in range(5))
+
+
+def test_a_pose_the_features_contradict_fails():
+    guard = TrackingGuard(GuardSettings(min_feature_agreement=0.5))
+    assert guard.check(0.01, 0.1, 0.8, agreement=0.9) is None
+    assert "30% of the matches" in guard.check(0.01, 0.1, 0.8, agreement=0.3)
+    assert guard.check(0.01, 0.1, 0.8, agreement=None) is None  # no feature pose: nothing to contradict
+    assert TrackingGuard(GuardSettings(min_feature_agreement=0.0)).check(0.01, 0.1, 0.8, agreement=0.0) is None
+
+
+def keyframe(i: int) -> CompactFrame:
+    f = room_frame(i)
+    return CompactFrame.from_frame(f, np.linalg.inv(f.gt_c2w))
+
+
+def query(i: int) -> FeatureView:
+    f = room_frame(i)
+    return FeatureView(extract_features(f.rgb, f.depth, f.intrinsics, FeatureSettings()))
+
+
+def test_the_keyframe_seen_from_nearest_gives_the_pose():
+    store = KeyframeStore(KeyframeSettings(), [keyframe(i) for i in (0, 10, 20, 30)])
+    relocalizer = Relocalizer(FeatureSettings(), candidates=2, min_inliers=30)
+    found = relocalizer.candidates(store, query(21))
+    assert found and found[0].reference.index == 20
+    error = np.linalg.inv(room_frame(21).gt_c2w) @ found[0].c2w
+    assert rotation_angle_deg(error[:3, :3]) < 1.5 and np.linalg.norm(error[:3, 3]) < 0.1
+    assert all(a.inliers >= b.inliers >= 30 for a, b in itertools.pairwise(found))
+
+
+def test_the_relocalizer_follows_the_store():
+    store = KeyframeStore(KeyframeSettings(max_keyframes=2, keep_recent=1, replace_radius_m=None))
+    relocalizer = Relocalizer(FeatureSettings(), candidates=3, min_inliers=30)
+    store.add(keyframe(20))
+    assert relocalizer.candidates(store, query(21))[0].reference.index == 20
+    assert relocalizer.held == [20]
+    store.add(keyframe(40))
+    store.add(keyframe(50))  # over the cap: a keyframe leaves, and its features with it
+    relocalizer.candidates(store, query(21))
+    assert len(store) == 2 and relocalizer.held == sorted(kf.index for kf in store)
+
+
+@pytest.fixture(scope="module")
+def kidnapped():
+    """The orbit's frames 0-39, then (the camera carried back unseen, 57 degrees) frames 2-15 again."""
+    order = [*range(40), *range(2, 16)]
+    overrides = ["mapping.iterations=10", "keyframes.every=3", "guard.lost_after=2"]
+    slam = Slam(load_config("synthetic", overrides=overrides))
+    steps = []
+    for n, i in enumerate(order):
+        frame = room_frame(i)
+        stamped = type(frame)(frame.rgb, frame.depth, frame.intrinsics, None, n * 33_333_333, frame.gt_c2w, n)
+        steps.append(slam.process(stamped))
+    return order, steps, slam
+
+
+def test_a_kidnapped_camera_is_lost_at_once_and_found_again(kidnapped):
+    order, steps, slam = kidnapped
+    states = [s.track.state for s in steps]
+    assert all(state == "ok" for state in states[:40])
+    first_lost = states.index("lost")
+    assert 40 <= first_lost <= 42  # lost within three frames of the jump
+    found = states.index("relocalized")
+    assert found > first_lost and found - 40 <= 30
+    for step in steps[first_lost:found]:  # nothing mapped while lost, the last accepted pose held
+        assert step.map.stats is None and step.map.added == 0 and not step.map.keyframe
+    for n in range(found, len(order)):
+        truth = np.linalg.inv(poses()[0]) @ poses()[order[n]]
+        assert np.linalg.norm(steps[n].c2w[:3, 3] - truth[:3, 3]) < 0.01, n
+    counts = slam.guard.counts()
+    assert counts.lost_events == 1 and counts.relocalizations == 1 and counts.frames_while_lost == found - first_lost
+
+
+def test_a_pose_the_features_contradict_gives_way_to_the_features_pose():
+    """Tracking that slides off (as over a plane) is caught by the features, whose pose is then judged and kept."""
+    slam = Slam(load_config("synthetic", overrides=["mapping.iterations=5"]))
+    for i in range(8):
+        slam.process(room_frame(i))
+    track = slam.tracker.track
+
+    def sliding(gaussians, frame, init_w2c, *args, **kwargs):
+        result = track(gaussians, frame, init_w2c, *args, **kwargs)
+        slid = result.w2c.copy()
+        slid[0, 3] += 0.15  # 15 cm sideways: a dozen pixels at the room's depth
+        return dataclasses.replace(result, w2c=slid, rendering=None)
+
+    slam.tracker.track = sliding
+    step = slam.process(room_frame(8))
+    truth = np.linalg.inv(poses()[0]) @ poses()[8]
+    assert not step.track.failed and step.track.state == "ok"
+    assert np.linalg.norm(step.c2w[:3, 3] - truth[:3, 3]) < 0.05  # the features' pose, judged and accepted
+    assert step.map.stats is not None  # and mapped
