@@ -45,7 +45,8 @@ class Run:
     metrics: dict
     stamps: np.ndarray  # [T] ns
     poses: np.ndarray  # [T, 4, 4] c2w
-    truth: np.ndarray  # [T, 4, 4] c2w
+    truth: np.ndarray  # [T, 4, 4] c2w (identity where the frame has no ground truth)
+    has_truth: np.ndarray  # [T] bool
     states: list[str]  # per frame: ok, lost, relocalized
     mapped_while_lost: int  # lost frames with mapping steps or added Gaussians
 
@@ -56,7 +57,7 @@ class Run:
 
     def ate_cm(self, keep: np.ndarray | None = None) -> float:
         """ATE RMSE (cm) over the estimated frames (and ``keep``)."""
-        mask = self.estimated if keep is None else self.estimated & keep
+        mask = self.estimated & self.has_truth if keep is None else self.estimated & self.has_truth & keep
         return 100 * ate(self.poses[mask], self.truth[mask]).rmse
 
     def row(self) -> list[object]:
@@ -89,13 +90,16 @@ def sgs_run(source: Path, out: Path, args: argparse.Namespace, name: str, realti
     if proc.returncode != 0:
         raise SystemExit(f"bench_fast_motion: {' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
     stamps, poses = read_tum_trajectory(out / "trajectory.txt")
-    _, truth = read_tum_trajectory(out / "groundtruth.txt")
+    truth_stamps, truth_poses = read_tum_trajectory(out / "groundtruth.txt")  # only the frames with ground truth
+    by_stamp = dict(zip(truth_stamps.tolist(), truth_poses, strict=True))
+    has_truth = np.array([t in by_stamp for t in stamps.tolist()])
+    truth = np.stack([by_stamp.get(t, np.eye(4)) for t in stamps.tolist()])
     with (out / "frames.csv").open() as f:
         rows = list(csv.DictReader(f))
     lost = [r for r in rows if r["tracking_state"] == "lost"]
     mapped = sum(1 for r in lost if int(r["map_iterations"]) or int(r["added"]))
     metrics = json.loads((out / "metrics.json").read_text())
-    return Run(name, metrics, stamps, poses, truth, [r["tracking_state"] for r in rows], mapped)
+    return Run(name, metrics, stamps, poses, truth, has_truth, [r["tracking_state"] for r in rows], mapped)
 
 
 def cut_copy(source: Path, work: Path, at_s: float, length_s: float) -> tuple[Path, int]:

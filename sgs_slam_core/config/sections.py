@@ -301,8 +301,8 @@ class FeatureSettings:
     """
 
     enabled: bool = True
-    count: int = 200
-    levels: int = 2
+    count: int = 300
+    levels: int = 3
     fast_threshold: int = 10
     max_distance: int = 64
     min_inliers: int = 20

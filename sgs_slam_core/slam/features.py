@@ -174,12 +174,9 @@ def solve_motion(
     None when fewer than ``settings.min_inliers`` matches agree. The pose is refined
     (Levenberg-Marquardt) on its inliers.
     """
-    with_depth = reference.has_depth[matches.reference]
-    ref_idx, query_idx = matches.reference[with_depth], matches.query[with_depth]
-    if len(ref_idx) < max(settings.min_inliers, 6):
+    points, pixels = _matched(reference, query, matches)
+    if len(points) < max(settings.min_inliers, 6):
         return None
-    points = reference.points[ref_idx]
-    pixels = query.keypoints[query_idx]
     camera = _camera_matrix(query.intrinsics)
     ok, rvec, tvec, inliers = cv2.solvePnPRansac(
         points,
@@ -201,7 +198,7 @@ def solve_motion(
     count = int((_reprojection_errors(points, pixels, pose, query.intrinsics) <= settings.reprojection_px).sum())
     if count < settings.min_inliers:
         return None
-    return FeatureMotion(pose, count, len(ref_idx))
+    return FeatureMotion(pose, count, len(points))
 
 
 def _matched(reference: FrameFeatures, query: FrameFeatures, matches: Matches) -> tuple[np.ndarray, np.ndarray]:
