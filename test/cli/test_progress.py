@@ -40,7 +40,7 @@ def test_terminal_bar_redraws_in_place():
 
 
 def fake_step(c2w):
-    return SimpleNamespace(c2w=c2w)
+    return SimpleNamespace(c2w=c2w, track=SimpleNamespace(lost=False))
 
 
 def test_slam_progress_shows_live_ate_gaussians_and_failures():

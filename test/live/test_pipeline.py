@@ -41,7 +41,7 @@ class GatedSlam:
         self.gate.acquire()
         self.tracked.append(frame.index)
         self.frames_processed += 1
-        return SimpleNamespace(failed=False, index=frame.index)
+        return SimpleNamespace(failed=False, index=frame.index, state="ok", lost=False)
 
     def map(self, frame, tracked, between_iterations=None, before_publish=None):
         self.num_gaussians += 1
@@ -65,7 +65,7 @@ class TimedSlam(GatedSlam):
         time.sleep(0.03)
         self.tracking_now = False
         self.frames_processed += 1
-        return SimpleNamespace(failed=False, index=frame.index)
+        return SimpleNamespace(failed=False, index=frame.index, state="ok", lost=False)
 
     def map(self, frame, tracked, between_iterations=None, before_publish=None):
         self.num_gaussians += 1
@@ -194,7 +194,7 @@ class SlowMappingSlam(GatedSlam):
 
     def track(self, frame, newer_frame_waiting=None):
         self.frames_processed += 1
-        return SimpleNamespace(failed=False, index=frame.index)
+        return SimpleNamespace(failed=False, index=frame.index, state="ok", lost=False)
 
     def map(self, frame, tracked, between_iterations=None, before_publish=None):
         for _ in range(400):
