@@ -144,6 +144,37 @@ class Feeder(Node):
             self.pubs["/semantic/image"].publish(image_msg(frame.labels.astype("uint16"), "16UC1", stamp, cam))
 
 
+@dataclasses.dataclass
+class WatchedSlam:
+    """slam_node's nodes, a feeder, what it heard on /diagnostics and /rosout, and the spinner of them all."""
+
+    ctx: Context
+    nodes: list
+    feeder: Feeder
+    diagnostics: list
+    logs: list
+    spinner: Spinner
+
+    def shut_down(self) -> None:
+        shut_down(self.ctx, [*self.nodes, self.feeder], self.spinner)
+
+
+def watched_slam(params: list[Parameter]) -> WatchedSlam:
+    """``build_slam_nodes`` with ``params`` in a new context, fed and watched by a :class:`Feeder`, spinning."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rcl_interfaces.msg import Log
+
+    from sgs_slam_ros.slam_node import build_slam_nodes
+
+    ctx = new_context()
+    nodes = build_slam_nodes(context=ctx, parameter_overrides=params)
+    feeder = Feeder(ctx)
+    diag, logs = [], []
+    feeder.create_subscription(DiagnosticArray, "/diagnostics", diag.append, 50)
+    feeder.create_subscription(Log, "/rosout", logs.append, 100)
+    return WatchedSlam(ctx, nodes, feeder, diag, logs, Spinner(ctx, [*nodes, feeder]))
+
+
 def shut_down(ctx: Context, nodes: list, spinner: Spinner | None = None) -> None:
     """Stop the spinner, close (where they can) and destroy ``nodes``, and shut ``ctx`` down."""
     if spinner is not None:

@@ -10,7 +10,18 @@ from rcl_interfaces.msg import Log
 
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import FAST, Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, tiny_frames, wait_for
+from .helpers import (
+    FAST,
+    Feeder,
+    Spinner,
+    diagnostics_of,
+    new_context,
+    node_params,
+    shut_down,
+    tiny_frames,
+    wait_for,
+    watched_slam,
+)
 
 pytestmark = pytest.mark.ros
 PERIOD = 33_333_333  # ns
@@ -19,14 +30,8 @@ OK = 0
 
 def test_frames_lost_before_the_node_are_counted(tiny_scene):
     frames = tiny_frames(tiny_scene)
-    ctx = new_context()
-    params = node_params(lockstep=False, map_alignment="optical")
-    nodes = build_slam_nodes(context=ctx, parameter_overrides=params)
-    feeder = Feeder(ctx)
-    diag, logs = [], []
-    feeder.create_subscription(DiagnosticArray, "/diagnostics", diag.append, 50)
-    feeder.create_subscription(Log, "/rosout", logs.append, 100)
-    spinner = Spinner(ctx, [*nodes, feeder])
+    watched = watched_slam(node_params(lockstep=False, map_alignment="optical"))
+    nodes, feeder, diag, logs = watched.nodes, watched.feeder, watched.diagnostics, watched.logs
     missing = {12, 13, 25, 31}  # the camera's frames that never reach the node
     sent = [k for k in range(40) if k not in missing]
     try:
@@ -57,7 +62,7 @@ def test_frames_lost_before_the_node_are_counted(tiny_scene):
         assert lines and "frame(s) of /" in lines[0] and "lost so far" in lines[0]
         assert v["map_alignment"] == "optical" and v["processing_size"] == "64x48" and v["input_size"] == "64x48"
     finally:
-        shut_down(ctx, [*nodes, feeder], spinner)
+        watched.shut_down()
 
 
 def test_busy_lockstep_node_gives_no_remap_advice(tiny_scene):

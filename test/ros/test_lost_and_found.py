@@ -3,13 +3,9 @@
 import dataclasses
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import Log
-
-from sgs_slam_ros.slam_node import build_slam_nodes
 
 from ..slam.views import room_frame
-from .helpers import FAST, Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, wait_for
+from .helpers import FAST, diagnostics_of, node_params, wait_for, watched_slam
 
 pytestmark = pytest.mark.ros
 PERIOD = 33_333_333  # ns
@@ -19,14 +15,9 @@ WARN = 1
 def test_a_kidnapped_camera_is_reported_lost_and_relocalized():
     # the orbit 3 degrees a frame to 57 degrees, then carried back unseen to 3 degrees
     order = [*range(0, 40, 2), *range(2, 16, 2)]
-    ctx = new_context()
     params = node_params(map_alignment="optical", overrides=[*FAST, "keyframes.every=3", "guard.lost_after=2"])
-    nodes = build_slam_nodes(context=ctx, parameter_overrides=params)
-    feeder = Feeder(ctx)
-    diag, logs = [], []
-    feeder.create_subscription(DiagnosticArray, "/diagnostics", diag.append, 50)
-    feeder.create_subscription(Log, "/rosout", logs.append, 100)
-    spinner = Spinner(ctx, [*nodes, feeder])
+    watched = watched_slam(params)
+    nodes, feeder, diag, logs = watched.nodes, watched.feeder, watched.diagnostics, watched.logs
     states = []
     nodes[0].pipeline.pose_listeners.append(lambda _frame, outcome: states.append(outcome.state))
     try:
@@ -57,4 +48,4 @@ def test_a_kidnapped_camera_is_reported_lost_and_relocalized():
         assert any(line.startswith("relocalized") for line in lines)
         assert len(nodes[0].path) == len(order) - states.count("lost")  # no held pose joins the path
     finally:
-        shut_down(ctx, [*nodes, feeder], spinner)
+        watched.shut_down()
