@@ -120,7 +120,7 @@ def test_live_on_the_cpu_mapping_steps_never_start_while_a_frame_is_tracked():
         pipeline.shutdown()
 
 
-@pytest.mark.parametrize(("turn", "steps"), [(0.1, 2), (0.25, 5)])
+@pytest.mark.parametrize(("turn", "steps"), [(0.0, 0), (0.1, 2), (0.25, 5)])
 def test_live_on_the_cpu_a_tracked_frames_job_makes_its_turn_then_ends_for_the_next_frame(turn, steps):
     slam = TimedSlam(live=LiveSettings(map_turn_fraction=turn))
     pipeline = SlamPipeline(slam, lockstep=False, log=lambda _: None)
