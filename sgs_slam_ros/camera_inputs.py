@@ -1,7 +1,8 @@
 """The camera topics of a node: subscriptions, frame assembly, silence watch and their live parameters.
 
-Shared by ``tracking_node`` and a standalone ``mapping_node``: both subscribe ``{rgb,depth,semantic}/image``
-and ``rgb/camera_info`` with the input QoS, synchronise them into frames (:class:`FrameAssembler`) and
+Shared by ``tracking_node`` and a standalone ``mapping_node``: both subscribe ``{rgb,depth}/image``
+and ``rgb/camera_info`` with the input QoS, synchronise them into frames (:class:`FrameAssembler`),
+take ``semantic/image`` apart from them (a node that maps, with ``use_semantics``), and
 report inputs that stay silent while the node waits (:class:`InputWatch`, :class:`Activity`) and
 frames that never arrived (gaps in each stream's stamps, :class:`StreamGaps`).
 """
@@ -12,6 +13,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -36,6 +38,8 @@ class CameraInputs:
     ``extra_topics``: further inputs the node subscribes itself (name -> topic relative to the node),
     watched for silence too (the node calls ``watch.tick(name)``); ``hints``: a sentence per input
     added to its "silent" log line; ``activity``: the node's work (silence counts only while idle).
+    ``on_labels(stamp_ns, labels)``: label images at the processing size (None: ``semantic/image`` is
+    not subscribed; with ``use_semantics`` off neither).
     """
 
     def __init__(
@@ -46,31 +50,35 @@ class CameraInputs:
         activity: Activity,
         extra_topics: dict[str, str] | None = None,
         hints: dict[str, str] | None = None,
+        on_labels: Callable[[int, np.ndarray], None] | None = None,
     ) -> None:
         self.logger = node.get_logger()
         log = self.logger.warn
         self.log, self.activity = log, activity
+        labelled = params["use_semantics"] and on_labels is not None
         self.assembler = FrameAssembler(
-            params["use_semantics"],
             params["sync_queue_size"],
             round(params["sync_slop_s"] * 1e9),
             params["depth_scale"],
             on_frame,
             log,
             params["downscale"],
+            on_labels if labelled else None,
         )
         params.on_change["sync_slop_s"] = self.assembler.set_slop
         params.on_change["depth_scale"] = lambda v: setattr(self.assembler, "depth_scale", v)
         self.colour_rate = RateMeter()
         qos = input_qos(params["input_qos"], params["input_queue_size"])
-        names = ["rgb", "depth", *(["semantic"] if params["use_semantics"] else [])]
-        for i, name in enumerate(names):
+        names = ["rgb", "depth", *(["semantic"] if labelled else [])]
+        for i, name in enumerate(names[:2]):
             node.create_subscription(Image, f"{name}/image", lambda msg, i=i, n=name: self._image(i, n, msg), qos)
+        if labelled:
+            node.create_subscription(Image, "semantic/image", self._label_image, qos)
         node.create_subscription(CameraInfo, "rgb/camera_info", self._camera_info, qos)
         topics = {n: node.resolve_topic_name(f"{n}/image") for n in names}
         topics["camera_info"] = node.resolve_topic_name("rgb/camera_info")
         topics.update({n: node.resolve_topic_name(t) for n, t in (extra_topics or {}).items()})
-        self.watch = InputWatch(topics, log, hints)
+        self.watch = InputWatch(topics, log, hints, apart=frozenset({"semantic"}))
         self.gaps = {name: StreamGaps() for name in [*names, "camera_info"]}
         self._loss_logged_at: float | None = None
         self._busy_logged = False
@@ -81,6 +89,11 @@ class CameraInputs:
         self.watch.tick(name)
         self._count_gap(name, msg)
         self.assembler.image(index, msg)
+
+    def _label_image(self, msg: Any) -> None:
+        self.watch.tick("semantic")
+        self._count_gap("semantic", msg)
+        self.assembler.label_image(msg)
 
     def _camera_info(self, msg: Any) -> None:
         self.watch.tick("camera_info")
@@ -110,23 +123,35 @@ class CameraInputs:
 
         ``nothing`` names what is missing in the message (e.g. "no frames", "nothing mapped"). A busy
         node (a frame in work for longer than ``stale_s``) says so, with its processing rate, and
-        judges no input silent.
+        judges only the inputs it works without (labels).
         """
         idle_since = self.activity.idle_since()
         if idle_since is None:
-            busy_s = self.activity.busy_s()
-            if busy_s <= stale_s:
-                return [], None
-            return [], (OK, self._busy_message(busy_s))
+            return self._busy_silence(stale_s)
         silent = self.watch.silent(stale_s, idle_since)
         if self.watch.all_silent(stale_s, idle_since):
             last = self.colour_rate.last
             waited = "yet" if last is None else f"for {self.colour_rate.idle_s():.0f} s"
             return silent, (WARN, f"no input {waited}: waiting for {', '.join(self.watch.topics.values())}")
-        if silent:
-            names = ", ".join(self.watch.topics[n] for n in silent)
+        waited_for = [n for n in silent if n not in self.watch.apart]
+        if waited_for:
+            names = ", ".join(self.watch.topics[n] for n in waited_for)
             return silent, (WARN, f"{nothing}: {names} silent while the others arrive")
+        if silent:
+            return silent, (WARN, self._without_message(silent))
         return silent, None
+
+    def _busy_silence(self, stale_s: float) -> tuple[list[str], tuple[int, str] | None]:
+        """:meth:`silence` while a frame is in work: the inputs it works without, else how long it is busy."""
+        silent = self.watch.silent_apart(stale_s)
+        if silent:
+            return silent, (WARN, self._without_message(silent))
+        busy_s = self.activity.busy_s()
+        return [], None if busy_s <= stale_s else (OK, self._busy_message(busy_s))
+
+    def _without_message(self, silent: list[str]) -> str:
+        names = ", ".join(self.watch.topics[n] for n in silent)
+        return f"no labels: {names} silent while the frames arrive (tracking and mapping go on, without classes)"
 
     def _busy_message(self, busy_s: float) -> str:
         rate = self.activity.rate_hz()

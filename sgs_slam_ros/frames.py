@@ -1,4 +1,4 @@
-"""Assemble synchronised RGB, depth, labels and camera_info messages into core Frames.
+"""Assemble synchronised RGB, depth and camera_info messages into core Frames; label images apart.
 
 Bad input never raises out of a callback: each cause is logged once (with a running count),
 counted for /diagnostics, and the frame is dropped. Every colour image is accounted for: it becomes
@@ -6,6 +6,11 @@ a frame, is dropped by the synchroniser (no partner in time, or pushed out of it
 rejected (bad input), or still waits (``colour_in == emitted + colour_dropped + rejected + waiting``).
 With a ``downscale`` above 1 each frame is brought to the processing size exactly as ``sgs-slam run
 --downscale`` does (colour area-averaged, depth and labels nearest, intrinsics scaled).
+
+Label images are not synchronised with the frames: a segmenter is slower than the camera and behind
+it, and a frame that waited for its labels would wait out the segmenter. Each label image is checked
+against the camera's size, brought to the processing size and handed to ``on_labels`` with its
+stamp, to be fused into the map when it comes.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
+import cv2
 import numpy as np
 
 from msg_adapters import (
@@ -33,7 +39,7 @@ from sgs_slam_core.geometry.camera import Intrinsics
 
 __all__ = ["FrameAssembler"]
 
-RGB, DEPTH, SEMANTIC = 0, 1, 2
+RGB, DEPTH = 0, 1
 
 
 class _RejectedError(Exception):
@@ -45,34 +51,39 @@ class _RejectedError(Exception):
 
 
 class FrameAssembler:
-    """Turns incoming messages into Frames via an approximate-time synchroniser."""
+    """Turns incoming messages into Frames via an approximate-time synchroniser, and label images into label arrays.
+
+    ``on_labels(stamp_ns, labels)``: a label image's class ids [H, W] at the processing size.
+    """
 
     def __init__(
         self,
-        use_semantics: bool,
         queue_size: int,
         slop_ns: int,
         depth_scale: float,
         on_frame: Callable[[Frame], None],
         log: Callable[[str], None],
         downscale: float = 1.0,
+        on_labels: Callable[[int, np.ndarray], None] | None = None,
     ) -> None:
-        self.use_semantics = use_semantics
+        self.on_labels = on_labels
         self.downscale = downscale
         self.input_size: tuple[int, int] | None = None  # (width, height) of the latest frame as received
         self.processing_size: tuple[int, int] | None = None  # and as handed on
         self.depth_scale = depth_scale
         self.on_frame, self.log = on_frame, log
-        self.sync = ApproximateSync(3 if use_semantics else 2, queue_size, slop_ns)
+        self.sync = ApproximateSync(2, queue_size, slop_ns)
         self.intrinsics: Intrinsics | None = None
         self.last_stamp_ns: int | None = None
         self.rejected: Counter[str] = Counter()
         self._logged: set[str] = set()
         self._lock = threading.Lock()
         self._waiting: list[tuple[int, list[Any]]] = []  # synchronised sets that arrived before any camera_info
+        self._labels_waiting: list[Any] = []  # label images that arrived before any camera_info
         self._queue_size = queue_size
         self.frame_id = ""  # header.frame_id of the latest colour image that became a frame
         self.colour_in = 0  # colour images received
+        self.labels_in = 0  # label images received (handed on, or rejected)
         self._waiting_dropped = 0  # sets waiting for camera_info dropped by a reset
 
     @property
@@ -118,11 +129,50 @@ class FrameAssembler:
         self.intrinsics = k
         with self._lock:
             waiting, self._waiting = self._waiting, []
+            labels, self._labels_waiting = self._labels_waiting, []
         for stamp_ns, msgs in waiting:
             self._assemble(stamp_ns, msgs)
+        for label_msg in labels:
+            self._label(label_msg, k)
+
+    def label_image(self, msg: Any) -> None:
+        """A label image: checked against the camera's size, brought to the processing size, handed on.
+
+        One that comes before any camera_info waits for it (as frames do), up to ``queue_size``.
+        """
+        with self._lock:
+            self.labels_in += 1
+            k = self.intrinsics
+            if k is None:
+                self._labels_waiting.append(msg)
+                overflow = len(self._labels_waiting) > self._queue_size
+                if overflow:
+                    self._labels_waiting.pop(0)
+        if k is None:
+            if overflow:
+                self.reject("no camera_info yet", "waiting for rgb/camera_info")
+            return
+        self._label(msg, k)
+
+    def _label(self, msg: Any, k: Intrinsics) -> None:
+        try:
+            labels = labels_from_image(msg)
+        except AdapterError as err:
+            self.reject("wrong encoding or bad image", str(err))
+            return
+        if labels.shape != k.shape:
+            self.reject(
+                "label image size differs", f"{labels.shape[1]}x{labels.shape[0]} vs camera {k.width}x{k.height}"
+            )
+            return
+        if self.downscale != 1.0:
+            size = k.scaled(1.0 / self.downscale)
+            labels = cv2.resize(labels, (size.width, size.height), interpolation=cv2.INTER_NEAREST)
+        if self.on_labels is not None:
+            self.on_labels(stamp_to_ns(msg.header.stamp), labels)
 
     def image(self, index: int, msg: Any) -> None:
-        """An rgb (0), depth (1) or semantic (2) image."""
+        """An rgb (0) or depth (1) image."""
         with self._lock:
             self.colour_in += int(index == RGB)
             matched = self.sync.push(index, stamp_to_ns(msg.header.stamp), msg)
@@ -159,14 +209,9 @@ class FrameAssembler:
         try:
             rgb = rgb_from_image(msgs[RGB])
             depth = depth_from_image(msgs[DEPTH], self.depth_scale)
-            labels = labels_from_image(msgs[SEMANTIC]) if self.use_semantics else None
         except AdapterError as err:
             raise _RejectedError("wrong encoding or bad image", str(err)) from err
-        shapes = {
-            "rgb": rgb.shape[:2],
-            "depth": depth.shape,
-            **({"semantic": labels.shape} if labels is not None else {}),
-        }
+        shapes = {"rgb": rgb.shape[:2], "depth": depth.shape}
         if len(set(shapes.values())) > 1:
             raise _RejectedError("image sizes differ", ", ".join(f"{n} {v[1]}x{v[0]}" for n, v in shapes.items()))
         if rgb.shape[:2] != k.shape:
@@ -184,10 +229,10 @@ class FrameAssembler:
                     f"{self.input_size[0]}x{self.input_size[1]} / {self.downscale:g} = {k.width}x{k.height}; "
                     f"SLAM needs at least {MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE}",
                 )
-            rgb, depth, labels = resize_frame(rgb, depth, labels, k.width, k.height)
+            rgb, depth, _ = resize_frame(rgb, depth, None, k.width, k.height)
         self.processing_size = (k.width, k.height)
         try:
-            return Frame(rgb=rgb, depth=depth, intrinsics=k, labels=labels, stamp_ns=stamp_ns)
+            return Frame(rgb=rgb, depth=depth, intrinsics=k, stamp_ns=stamp_ns)
         except SgsSlamError as err:
             raise _RejectedError("invalid frame", str(err)) from err
 
@@ -197,4 +242,5 @@ class FrameAssembler:
             self.sync.clear()
             self._waiting_dropped += len(self._waiting)
             self._waiting.clear()
+            self._labels_waiting.clear()
         self.last_stamp_ns = None

@@ -16,6 +16,7 @@ maps frames whose stamps match a pose exactly.
 from __future__ import annotations
 
 import threading
+import time
 from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path as FilePath
@@ -33,7 +34,7 @@ from msg_adapters.pointcloud import POINT_DTYPE
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.frame_ids import CAMERA_FRAME
-from sgs_slam_core.live import MapJob, SlamPipeline
+from sgs_slam_core.live import MapJob, PipelineStats, SlamPipeline
 from sgs_slam_core.mapio import load_map, save_map
 from sgs_slam_core.slam.footprint import footprint
 from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
@@ -84,10 +85,18 @@ class MappingNode(Node):
         if pipeline is None:
             slam = Slam(slam_config(self.params))
             slam.prepare(self.get_logger().info)  # compile the CPU kernels now, not inside the first frame
-            pipeline = SlamPipeline(slam, self.params["lockstep"], track=False, map=True, log=self.get_logger().error)
+            pipeline = SlamPipeline(
+                slam,
+                self.params["lockstep"],
+                track=False,
+                map=True,
+                log=self.get_logger().error,
+                late_labels=self.params["use_semantics"],
+            )
             self._subscribe_inputs(pipeline)
         self.pipeline = pipeline
         pipeline.map_listeners.append(self._on_mapped)
+        pipeline.label_listeners.append(lambda *_: self._map_changed())  # late labels changed the classes
         out = output_qos(2)
         self.color_pub = self.create_publisher(Image, "~/render/color", out)
         self.semantic_pub = self.create_publisher(Image, "~/render/semantic", out)
@@ -120,6 +129,7 @@ class MappingNode(Node):
             self.activity,
             {"pose": "tracking_node/pose"},
             {"pose": "is tracking_node running?"},
+            on_labels=lambda stamp_ns, labels: pipeline.submit_labels(stamp_ns, labels, time.monotonic()),
         )
         self.create_subscription(PoseStamped, "tracking_node/pose", self._on_pose, output_qos(50))
 
@@ -326,6 +336,7 @@ class MappingNode(Node):
             "mapping_steps_per_frame": f"{st.map_steps_per_frame:.1f}",
             **footprint(self.pipeline.slam).as_strings(),  # Gaussians, keyframes held, and their bytes
             "tracking_failures": str(st.tracking_failures),
+            **_label_counts(st),
             "locked_classes": " ".join(str(i) for i in sorted(self.pipeline.slam.locked_labels)) or "none",
             "undoable_edits": str(self.pipeline.slam.edits.depth),
             "renders_published": str(self.renders.count),
@@ -346,6 +357,18 @@ class MappingNode(Node):
         """Stop the workers this node owns."""
         if self._owns_pipeline:
             self.pipeline.shutdown()
+
+
+def _label_counts(st: PipelineStats) -> dict[str, str]:
+    """Late label images for /diagnostics: in, fused, unmatched, pending, and the latency to their fusion."""
+    c = st.labels
+    latency = sorted(st.label_latency_s)
+    return {
+        "labels_in": str(c.labels_in),
+        "labels_fused": str(c.labels_fused),
+        "labels_unmatched": str(c.labels_unmatched),
+        "label_latency_ms": f"{1e3 * latency[len(latency) // 2]:.0f}" if latency else "n/a",
+    }
 
 
 def main(args: list[str] | None = None) -> int:

@@ -66,7 +66,9 @@ COMMON = (
     ParamSpec("map_frame", "map", "frame id of poses, paths, clouds and the /tf root", read_only=True),
     ParamSpec("camera_frame", "", "frame id of the camera ('' = header.frame_id of rgb/image)", read_only=True),
     ParamSpec("input_qos", "best_effort", "image subscription QoS", choices=INPUT_QOS_CHOICES, read_only=True),
-    ParamSpec("sync_queue_size", 10, "messages kept per input for synchronisation", bounds=(1, 1000), read_only=True),
+    ParamSpec(
+        "sync_queue_size", 10, "colour and depth messages kept for synchronisation", bounds=(1, 1000), read_only=True
+    ),
     ParamSpec(
         "input_queue_size",
         30,
@@ -76,7 +78,9 @@ COMMON = (
         read_only=True,
     ),
     ParamSpec("sync_slop_s", 0.02, "max stamp difference of a synchronised set (s); 0 = exact", bounds=(0.0, 1.0)),
-    ParamSpec("use_semantics", True, "subscribe semantic/image (class-id labels)", read_only=True),
+    ParamSpec(
+        "use_semantics", True, "subscribe semantic/image (class-id labels, fused when they come)", read_only=True
+    ),
     ParamSpec("depth_scale", 1000.0, "16UC1 depth units per metre (1000 = mm)", bounds=(1.0, 100000.0)),
     ParamSpec(
         "downscale",

@@ -15,6 +15,7 @@ import threading
 import time
 from collections.abc import Callable
 
+import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
@@ -49,7 +50,8 @@ _REPUBLISH_S = 1.0  # s: lockstep with a remote mapper re-sends the last pose th
 
 
 SILENT_HINTS = {
-    "semantic": "no labels, no frames: run the segmentation node, remap semantic/image, or set use_semantics:=false",
+    "semantic": "no labels, so the map has no classes: run segmentation_node, remap semantic/image, or set "
+    "use_semantics:=false",
     "camera_info": "remap rgb/camera_info to the colour camera's camera_info",
     "depth": "remap depth/image to the depth image registered to colour (e.g. aligned_depth_to_color/image_raw)",
 }
@@ -81,9 +83,12 @@ class TrackingNode(Node):
         pipeline.pose_listeners.append(self._on_pose)
         pipeline.map_listeners.append(lambda *_: self.activity.end())
         self.outputs = RateMeter()
-        self.camera = CameraInputs(self, self.params, self._on_frame, self.activity, hints=SILENT_HINTS)
+        on_labels = None if standalone else self._on_labels  # a standalone tracker has no map to label
+        self.camera = CameraInputs(
+            self, self.params, self._on_frame, self.activity, hints=SILENT_HINTS, on_labels=on_labels
+        )
         self.assembler = self.camera.assembler
-        if self.params["use_semantics"]:  # a label source (segmentation_node) names the table of its ids
+        if self.params["use_semantics"] and not standalone:  # a label source (segmentation_node) names its ids' table
             self.create_subscription(String, "semantic/label_table", self._on_label_table, latched_qos())
         self.pose_pub = self.create_publisher(PoseStamped, "~/pose", output_qos(10))
         self.path_pub = self.create_publisher(Path, "~/path", output_qos(1))
@@ -121,7 +126,8 @@ class TrackingNode(Node):
         slam.prepare(self.get_logger().info)  # compile the CPU kernels now, not inside the first frame
         log = self.get_logger().error
         if not standalone:
-            return SlamPipeline(slam, self.params["lockstep"], track=True, map=True, log=log)
+            late_labels = self.params["use_semantics"]
+            return SlamPipeline(slam, self.params["lockstep"], track=True, map=True, log=log, late_labels=late_labels)
         if self.params["map_source"] != "topic":
             self.get_logger().warn("standalone tracking_node follows mapping_node/gaussians (map_source:=topic)")
         self.create_subscription(PointCloud2, "mapping_node/gaussians", self._on_gaussians, latched_qos())
@@ -133,6 +139,9 @@ class TrackingNode(Node):
     def _on_frame(self, frame: Frame) -> None:
         self.activity.begin()
         self.pipeline.submit_frame(frame, time.monotonic())
+
+    def _on_labels(self, stamp_ns: int, labels: np.ndarray) -> None:
+        self.pipeline.submit_labels(stamp_ns, labels, time.monotonic())
 
     def _report_map_frame(self, choice: MapFrameChoice) -> None:
         """Say how the run's first frame set the map frame (``map_alignment``), as /diagnostics will."""

@@ -12,6 +12,7 @@ from sgs_slam_core.config import list_presets, load_config
 from sgs_slam_core.datasets import Dataset, DatasetOptions, dataset_format, formats, open_dataset
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.runner import format_table, run_offline
+from sgs_slam_core.runner.label_stream import LabelStream
 from sgs_slam_core.runner.outputs import check_run_dir
 from sgs_slam_core.runner.realtime import RealtimeOptions
 
@@ -60,6 +61,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="MIB",
         help="with --realtime: decode up to this many MiB of frames before the camera starts, as a camera "
         "delivers decoded images (0..1e6, default %(default).0f; 0 = read each frame just before its release)",
+    )
+    p.add_argument(
+        "--label-rate-hz",
+        type=FloatRange(0.01, 1000.0),
+        metavar="HZ",
+        help="with --realtime: the labels come as a segmenter's stream at HZ label images a second, apart "
+        "from the frames, and are fused when they come (0.01..1000; default: every frame carries its labels)",
+    )
+    p.add_argument(
+        "--label-delay-ms",
+        type=FloatRange(0.0, 60000.0),
+        metavar="MS",
+        help="with --realtime: each label image comes MS after its frame (0..60000, default 0; implies the "
+        "labels' own stream, at every frame's when --label-rate-hz is not given)",
     )
     add_viewer_arguments(p)
     p.set_defaults(func=run)
@@ -148,10 +163,16 @@ def run(args: argparse.Namespace) -> int:
         "overrides": overrides,
         "command": " ".join(sys.argv),
         "realtime": args.realtime,
+        "label_rate_hz": args.label_rate_hz,
+        "label_delay_ms": args.label_delay_ms,
     }
     realtime = None
+    separate_labels = args.label_rate_hz is not None or args.label_delay_ms is not None
+    if separate_labels and args.realtime is None:
+        raise DatasetError("--label-rate-hz and --label-delay-ms need --realtime (lockstep maps every label on time)")
     if args.realtime is not None:
-        realtime = RealtimeOptions(None if args.realtime == "stamps" else args.realtime, args.preload_mb)
+        labels = LabelStream(args.label_rate_hz, args.label_delay_ms or 0.0) if separate_labels else None
+        realtime = RealtimeOptions(None if args.realtime == "stamps" else args.realtime, args.preload_mb, labels)
     viewer = start_viewer(viewer_options)
     result = run_offline(
         dataset,

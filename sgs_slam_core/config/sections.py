@@ -657,6 +657,10 @@ class LiveSettings:
         mapping_weight_color: live runs weigh the mapping loss's colour term by this in place of
             ``mapping.weight_color`` (null: that one). In a few steps a frame, a lower colour weight
             spends them on the depth the tracker aligns to (the ``tum`` preset: 0.25).
+        label_buffer_s: when label images come apart from their frames (a segmenter's stream,
+            ``--label-rate-hz``), how long mapped views are kept for theirs (s of stamps; a view is
+            about 100 kB at 160x120, 1.5 MB at 640x480). A label image that finds no view is counted
+            as unmatched.
         densify_depth_error_factor: live runs add Gaussians where the rendered depth lies behind the
             measured by this times the median error, in place of ``densify.depth_error_factor``
             (null: that one). A few steps a frame cannot pull a mapped surface onto geometry that
@@ -671,8 +675,11 @@ class LiveSettings:
     geometry_lr_scale: float = 1.0
     mapping_weight_color: float | None = None
     densify_depth_error_factor: float | None = None
+    label_buffer_s: float = 3.0
 
     def __post_init__(self) -> None:
+        if not 0 <= self.label_buffer_s <= 60:
+            raise ConfigError(f"live.label_buffer_s must be in [0, 60] s, got {self.label_buffer_s}")
         if not self.geometry_lr_scale > 0:
             raise ConfigError(f"live.geometry_lr_scale must be > 0, got {self.geometry_lr_scale}")
         if self.mapping_weight_color is not None and not self.mapping_weight_color >= 0:

@@ -17,6 +17,11 @@ makes its turn of steps (``map_turn_fraction`` of ``mapping.iterations``), goes 
 waits, and ends (publishing its map) at the first step boundary after its turn where one does;
 then that frame is tracked. So every tracked frame is in the map the next one is tracked
 against, and a slow machine tracks fewer frames rather than tracking against a stale map.
+Label images may come later than their frames (a segmenter is slower than the camera): with
+``late_labels``, mapped views are kept for ``live.label_buffer_s`` seconds, each label image is
+matched to the view of its stamp (:class:`~sgs_slam_core.live.label_matcher.LabelMatcher`) and
+fused by a mapping job of its own (:meth:`Slam.fuse_labels`), which runs when no frame's job waits;
+tracking never waits for labels.
 On CUDA the mapping thread runs on its own stream, beside tracking, and a job ends early when a
 newer one waits and it made ``preempt_fraction`` of its steps.
 Two synchronisations make that safe: the mapping thread finishes its stream's work before ``Slam``
@@ -43,10 +48,11 @@ import numpy as np
 import torch
 
 from sgs_slam_core.errors import FrameError, SgsSlamError
-from sgs_slam_core.frame import Frame
+from sgs_slam_core.frame import CompactFrame, Frame
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelTable
+from sgs_slam_core.live.label_matcher import LabelCounts, LabelMatcher, LateLabels
 from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.guard import TrackingState
@@ -66,6 +72,7 @@ class MapJob:
     frame: Frame
     tracked: TrackOutcome | None = None
     c2w: np.ndarray | None = None  # [4, 4] registered when ``tracked`` is None
+    received_at: float | None = None  # s, monotonic: when the frame arrived
 
 
 @dataclass(frozen=True)
@@ -105,6 +112,8 @@ class PipelineStats:
     errors: int = 0  # tracking_errors + mapping_errors + listeners that raised
     last_error: str = ""
     latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=50))  # arrival -> pose (s)
+    labels: LabelCounts = field(default_factory=LabelCounts)  # late label images (``late_labels``)
+    label_latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=50))  # frame arrival -> labels fused
 
     def count_state(self, state: TrackingState) -> None:
         """Count a tracked frame's tracking state (lost and found events, frames lost)."""
@@ -124,6 +133,7 @@ class SlamPipeline:
 
     ``track`` / ``map``: which workers run here (a standalone tracking or mapping node runs one).
     ``ready_to_track(frames_tracked)``: an extra lockstep condition (a remote map has caught up).
+    ``late_labels``: label images come on their own (:meth:`submit_labels`), not with the frames.
     How live work shares the machine comes from ``slam.config.live`` (``map_turn_fraction``,
     ``preempt_fraction``).
     Listeners are called on the worker threads; one that raises is logged and counted.
@@ -137,6 +147,7 @@ class SlamPipeline:
         map: bool = True,
         log: Callable[[str], None] = print,
         ready_to_track: Callable[[int], bool] | None = None,
+        late_labels: bool = False,
     ) -> None:
         self.slam, self.lockstep, self.log = slam, lockstep, log
         self.track_enabled, self.map_enabled = track, map
@@ -144,9 +155,13 @@ class SlamPipeline:
         self.stats = PipelineStats()
         self.pose_listeners: list[Callable[[Frame, TrackOutcome], None]] = []
         self.map_listeners: list[Callable[[Frame, TrackOutcome, MapOutcome], None]] = []
+        self.label_listeners: list[Callable[[LateLabels, MapOutcome], None]] = []  # late labels fused
         self.paused = False
         self._frames: deque[tuple[float, Frame]] = deque()
         self._jobs: deque[MapJob] = deque()
+        self._label_jobs: deque[LateLabels] = deque()  # matched label images, oldest first
+        self._labels = LabelMatcher(slam.config.live.label_buffer_s if late_labels and map else 0.0)
+        self.stats.labels = self._labels.counts
         self._cv = threading.Condition()
         self._busy = {"track": False, "map": False}
         self._running = True
@@ -181,6 +196,18 @@ class SlamPipeline:
             self._frames.append((time.monotonic() if received_at is None else received_at, frame))
             self._cv.notify_all()
 
+    def submit_labels(self, stamp_ns: int, labels: np.ndarray, received_at: float | None = None) -> None:
+        """A label image [H, W] (class ids at the processing size) of the frame stamped ``stamp_ns``.
+
+        Fused once that frame is mapped (``late_labels``); without a mapped view of its stamp
+        within ``live.label_buffer_s`` it is counted as unmatched.
+        """
+        with self._cv:
+            late = self._labels.add_labels(stamp_ns, labels, time.monotonic() if received_at is None else received_at)
+            if late is not None:
+                self._label_jobs.append(late)
+                self._cv.notify_all()
+
     def count_dropped(self, frames: int = 1) -> None:
         """Count frames the caller dropped before handing them over (e.g. a pose that never came)."""
         with self._cv:
@@ -200,7 +227,7 @@ class SlamPipeline:
 
     # ------------------------------------------------------------------ workers
     def _mapping_idle(self) -> bool:
-        return not self.map_enabled or (not self._jobs and not self._busy["map"])
+        return not self.map_enabled or (not self._jobs and not self._label_jobs and not self._busy["map"])
 
     def _can_track(self) -> bool:
         if not self.lockstep:
@@ -249,7 +276,7 @@ class SlamPipeline:
                 self._cv.notify_all()
             if outcome is not None:  # still busy: a reset or an exclusive section waits for the hand-over
                 if self.map_enabled:  # first: the mapping starts while the pose is published
-                    self.submit_job(MapJob(frame, outcome))
+                    self.submit_job(MapJob(frame, outcome, received_at=received_at))
                 self._notify("publishing a pose", self.pose_listeners, frame, outcome)
             with self._cv:
                 self._busy["track"] = False
@@ -258,14 +285,18 @@ class SlamPipeline:
     def _map_loop(self) -> None:
         while True:
             with self._cv:
-                self._cv.wait_for(lambda: not self._running or self._jobs, timeout=0.5)
+                self._cv.wait_for(lambda: not self._running or self._jobs or self._label_jobs, timeout=0.5)
                 if not self._running:
                     return
-                if not self._jobs:
+                if not self._jobs and not self._label_jobs:
                     continue
-                job = self._jobs.popleft()
+                job = self._jobs.popleft() if self._jobs else None  # a frame's job first: the next frame needs it
+                late = self._label_jobs.popleft() if job is None else None
                 self._busy["map"] = True
                 self._map_steps = 0
+            if late is not None:
+                self._fuse(late)
+                continue
             result, tracked = None, job.tracked
             try:
                 with self._on_map_stream():
@@ -279,9 +310,40 @@ class SlamPipeline:
                 self._busy["map"] = False
                 self.stats.mapped += int(result is not None)
                 self.stats.map_steps += result.stats.iterations if result is not None and result.stats else 0
+                if result is not None and tracked is not None and not tracked.failed and not tracked.lost:
+                    self._keep_view(job, tracked)
                 self._cv.notify_all()
             if result is not None and tracked is not None:
                 self._notify("publishing the map", self.map_listeners, job.frame, tracked, result)
+
+    def _keep_view(self, job: MapJob, tracked: TrackOutcome) -> None:
+        """Keep a mapped frame for the label image that may come for it (under the lock)."""
+        if not self._labels.enabled:
+            return
+        f = job.frame
+        stored = Frame(f.rgb, f.depth, f.intrinsics, None, f.stamp_ns, None, tracked.index)
+        view = CompactFrame.from_frame(stored, np.linalg.inv(tracked.c2w))
+        received_at = time.monotonic() if job.received_at is None else job.received_at
+        self._label_jobs.extend(self._labels.add_view(view, received_at))
+
+    def _fuse(self, late: LateLabels) -> None:
+        """Fuse one matched label image into the map (the mapping thread, busy)."""
+        result = None
+        try:
+            with self._on_map_stream():
+                result = self.slam.fuse_labels(late.view, late.labels, self._between_map_steps, self._finish_map_stream)
+        except _StoppingError:
+            pass
+        except Exception as err:
+            self._error("label fusion", err)
+        with self._cv:
+            self._busy["map"] = False
+            if result is not None:
+                self.stats.labels.labels_fused += 1
+                self.stats.label_latency_s.append(time.monotonic() - late.view_arrived_at)
+            self._cv.notify_all()
+        if result is not None:
+            self._notify("publishing the labelled map", self.label_listeners, late, result)
 
     def _between_map_steps(self) -> bool:
         """Before each mapping step: raise when shutting down, return False to end the job here.
@@ -340,7 +402,7 @@ class SlamPipeline:
             return self._idle()
 
     def _idle(self) -> bool:
-        return not self._frames and not self._jobs and not any(self._busy.values())
+        return not self._frames and not self._jobs and not self._label_jobs and not any(self._busy.values())
 
     def wait_idle(self, timeout: float) -> bool:
         """Block until idle (or the timeout, s); True when idle."""
@@ -364,6 +426,10 @@ class SlamPipeline:
             if not self._cv.wait_for(lambda: not any(self._busy.values()), timeout=timeout):
                 return False
             self._jobs.clear()  # handed over by a frame tracked before the reset
+            self.stats.labels.labels_unmatched += len(self._label_jobs)  # their views are gone with the map
+            self.stats.labels.labels_matched -= len(self._label_jobs)
+            self._label_jobs.clear()
+            self._labels.clear()
             self.slam.reset()
             self.stats.tracking_state = "ok"
             self._cv.notify_all()

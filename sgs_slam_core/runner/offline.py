@@ -212,6 +212,10 @@ def _timing(loop: _Loop) -> dict[str, Any]:
         "late_frames": live.late_frames,
         "preloaded_frames": live.preloaded_frames,
         "wall_s": live.wall_s,
+        "labels_in": live.labels_in,
+        "labels_fused": live.labels_fused,
+        "labels_unmatched": live.labels_unmatched,
+        "label_latency_ms": live.label_latency_ms,
     }
 
 

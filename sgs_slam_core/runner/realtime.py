@@ -10,6 +10,10 @@ A camera delivers decoded images, so the frames are decoded before the camera's 
 many as fit in ``RealtimeOptions.preload_mb``: decoding image files beside the SLAM would take
 cores that a robot's SLAM has to itself. Frames past that budget are read just before their
 release; a reader slower than the camera delays releases, counted as ``late_frames``.
+
+With ``RealtimeOptions.labels`` the frames go in without their labels, and a segmenter's stream is
+reproduced beside them (:mod:`~sgs_slam_core.runner.label_stream`): the label images of frames about
+``1 / rate`` apart, each released ``delay`` after its frame, fused into the map when they come.
 """
 
 from __future__ import annotations
@@ -18,8 +22,9 @@ import logging
 import queue
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -27,6 +32,7 @@ from sgs_slam_core.datasets.base import Dataset
 from sgs_slam_core.errors import ConfigError, DatasetError, FrameError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.live import SlamPipeline
+from sgs_slam_core.runner.label_stream import LabelStream, label_releases
 from sgs_slam_core.slam.outcomes import MapOutcome, StepResult, TrackOutcome
 from sgs_slam_core.slam.system import Slam
 
@@ -42,11 +48,13 @@ class RealtimeOptions:
     """``hz``: release frames at this rate (Hz); None = at their recorded stamps.
 
     ``preload_mb``: decoded frames (MiB) read before the camera's clock starts; 0 = each frame is
-    read just before its release.
+    read just before its release. ``labels``: the label images come as a segmenter's stream, apart
+    from the frames (None: each frame carries its own).
     """
 
     hz: float | None = None
     preload_mb: float = 1024.0
+    labels: LabelStream | None = None
 
     def __post_init__(self) -> None:
         if not self.preload_mb >= 0:
@@ -66,6 +74,10 @@ class RealtimeStats:
     late_frames: int  # released later than their time (the reader could not keep up)
     bad_frames: int  # unreadable, or rejected by the SLAM (bad depth, stamps going backwards, ...)
     preloaded_frames: int = 0  # read before the camera's clock started (unreadable ones included)
+    labels_in: int | None = None  # label images released (None: frames carried their labels)
+    labels_fused: int | None = None
+    labels_unmatched: int | None = None  # no mapped view of their stamp
+    label_latency_ms: float | None = None  # median, from a frame's release to its labels fused
 
 
 @dataclass
@@ -110,7 +122,7 @@ def run_realtime(
     the SLAM rejects. ``announce(line)`` tells the user about the decoding before the clock starts.
     """
     times = release_times(dataset.stamps_ns, options.hz)
-    replay = _Replay(slam, dataset, on_tracked)
+    replay = _Replay(slam, dataset, on_tracked, options.labels)
     if options.preload_mb > 0:
         announce(f"decoding frames before the camera starts (up to {options.preload_mb:g} MiB)")
         replay.preload(len(times), int(options.preload_mb * 2**20), should_stop)
@@ -120,8 +132,15 @@ def run_realtime(
 class _Replay:
     """One realtime replay: the pipeline's listeners collect outcomes, ``run`` releases the frames."""
 
-    def __init__(self, slam: Slam, dataset: Dataset, on_tracked: Callable[[Frame, StepResult], None] | None) -> None:
-        self.slam, self.dataset, self.on_tracked = slam, dataset, on_tracked
+    def __init__(
+        self,
+        slam: Slam,
+        dataset: Dataset,
+        on_tracked: Callable[[Frame, StepResult], None] | None,
+        labels: LabelStream | None = None,
+    ) -> None:
+        self.slam, self.dataset, self.on_tracked, self.label_stream = slam, dataset, on_tracked, labels
+        self.held_labels: dict[int, tuple[int, np.ndarray]] = {}  # frame index -> (stamp ns, labels) until due
         # by dataset index: ground truth c2w [4, 4] (or None) and the outcome without its tensors
         # (the mapper still has those; kept here they would add a frame's images per tracked frame)
         self.tracked: dict[int, tuple[np.ndarray | None, TrackOutcome]] = {}
@@ -177,9 +196,12 @@ class _Replay:
             return None
 
     def run(self, times: np.ndarray, hz: float | None, should_stop: Callable[[], bool]) -> RealtimeResult:
-        pipeline = SlamPipeline(self.slam, lockstep=False, log=self.on_error)
+        late_labels = self.label_stream is not None
+        pipeline = SlamPipeline(self.slam, lockstep=False, log=self.on_error, late_labels=late_labels)
         pipeline.pose_listeners.append(self.on_pose)
         pipeline.map_listeners.append(self.on_map)
+        labels_due = deque(label_releases(times, self.label_stream)) if self.label_stream is not None else deque()
+        labelled = {i for _, i in labels_due}
         interrupted = False
         try:
             start = time.monotonic()
@@ -191,17 +213,22 @@ class _Replay:
                 frame = self.ahead.pop(i) if i in self.ahead else self.read(i)  # before its release time
                 if frame is None:
                     continue
+                if late_labels:
+                    frame = self.strip_labels(i, frame, i in labelled)
                 if self.tracked and i > 0 and not self.started:  # initialised: the camera starts moving now
                     start, self.started = time.monotonic() - due, True
+                self.release_labels(pipeline, labels_due, start, due)
                 wait = start + due - time.monotonic()
                 if wait > 0:
                     time.sleep(wait)
                 elif -wait > _LATE_S:
                     self.late += 1
                 pipeline.submit_frame(frame, time.monotonic())
+                self.release_labels(pipeline, labels_due, start, due, inclusive=True)
                 if not self.started and not self.tracked:  # initialisation: the first frame is tracked and mapped
                     pipeline.wait_idle(timeout=600.0)
                 self.report()
+            self.release_labels(pipeline, labels_due, start, float("inf"), inclusive=True)
             while not pipeline.wait_idle(timeout=0.2):
                 self.report()
             wall_s = time.monotonic() - start
@@ -222,8 +249,30 @@ class _Replay:
             result.gt_c2w.append(gt_c2w)
         return result
 
+    def strip_labels(self, i: int, frame: Frame, labelled: bool) -> Frame:
+        """``frame`` without its labels; those of a frame the segmenter labels are held until due."""
+        if labelled and frame.labels is not None:
+            self.held_labels[i] = (frame.stamp_ns, frame.labels)
+        return replace(frame, labels=None)
+
+    def release_labels(
+        self, pipeline: SlamPipeline, due: deque[tuple[float, int]], start: float, until: float, inclusive: bool = False
+    ) -> None:
+        """Release the label images due before ``until`` (s after ``start``; or at it), each at its time."""
+        while due and (due[0][0] < until or (inclusive and due[0][0] <= until)):
+            at, i = due.popleft()
+            held = self.held_labels.pop(i, None)
+            if held is None:
+                continue  # the frame was unreadable or has no labels
+            wait = start + at - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            pipeline.submit_labels(held[0], held[1], time.monotonic())
+
     def _stats(self, pipeline: SlamPipeline, times: np.ndarray, hz: float | None, wall_s: float) -> RealtimeStats:
         st = pipeline.stats
+        labels = st.labels if self.label_stream is not None else None
+        latency = float(np.median(st.label_latency_s)) * 1e3 if st.label_latency_s else None
         mapped = sum(m.stats is not None for m in self.mapped.values())  # optimised, as in lockstep
         duration = float(times[-1]) if len(times) > 1 else 0.0
         rate = (len(times) - 1) / duration if duration > 0 else float(hz or 0.0)
@@ -237,4 +286,8 @@ class _Replay:
             late_frames=self.late,
             bad_frames=self.unreadable + st.tracking_errors,
             preloaded_frames=self.preloaded,
+            labels_in=None if labels is None else labels.labels_in,
+            labels_fused=None if labels is None else labels.labels_fused,
+            labels_unmatched=None if labels is None else labels.labels_unmatched,
+            label_latency_ms=latency,
         )

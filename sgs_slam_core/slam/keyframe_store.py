@@ -11,6 +11,7 @@ ones, while views nothing newer sees (the only look at a corner) stay.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import overload
@@ -18,7 +19,7 @@ from typing import overload
 import numpy as np
 
 from sgs_slam_core.config.sections import KeyframeSettings
-from sgs_slam_core.frame import DEPTH_UNITS_PER_M, CompactFrame
+from sgs_slam_core.frame import DEPTH_UNITS_PER_M, CompactFrame, compact_labels
 from sgs_slam_core.geometry.views import views_near
 from sgs_slam_core.slam.keyframes import label_miou, overlap_scores
 
@@ -134,6 +135,21 @@ class KeyframeStore(Sequence[CompactFrame]):
     def find(self, index: int) -> CompactFrame | None:
         """The held keyframe taken at frame ``index``, or None (never one, or let go)."""
         return next((e.frame for e in self._entries if e.frame.index == index), None)
+
+    def attach_labels(self, index: int, labels: np.ndarray) -> bool:
+        """Give the held keyframe of frame ``index`` its late label image [H, W]; False if none is held."""
+        entry = next((e for e in self._entries if e.frame.index == index), None)
+        if entry is None:
+            return False
+        self._nbytes -= entry.frame.nbytes
+        entry.frame = dataclasses.replace(entry.frame, labels=compact_labels(labels))
+        entry.thumb = _thumbnail(entry.frame.labels)
+        self._nbytes += entry.frame.nbytes
+        return True
+
+    def labelled_near(self, index: int, frames: int) -> bool:
+        """Whether a held keyframe with labels was taken fewer than ``frames`` frames from frame ``index``."""
+        return any(e.frame.labels is not None and abs(e.frame.index - index) < frames for e in self._entries)
 
     # ------------------------------------------------------------------ state
     @property

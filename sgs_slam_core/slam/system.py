@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -18,7 +19,7 @@ from sgs_slam_core.config.loader import config_to_dict
 from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.editing import EditRecord, EditRequest
 from sgs_slam_core.errors import BackendUnavailableError, FrameError
-from sgs_slam_core.frame import CompactFrame, Frame
+from sgs_slam_core.frame import CompactFrame, Frame, compact_labels
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
@@ -34,6 +35,7 @@ from sgs_slam_core.slam.guard import TrackingGuard, TrackingState
 from sgs_slam_core.slam.heap import keep_freed_heap, release_free_heap
 from sgs_slam_core.slam.keyframe_store import KeyframeStore
 from sgs_slam_core.slam.keyframes import is_keyframe
+from sgs_slam_core.slam.late_labels import label_unlabelled
 from sgs_slam_core.slam.localization import Localizer
 from sgs_slam_core.slam.map_frame import MapFrameChoice, MapFramePolicy
 from sgs_slam_core.slam.mapper import MapStats, WindowFrame, map_window
@@ -237,6 +239,44 @@ class Slam:
             release_free_heap()
         timings["map"] = time.perf_counter() - t0
         return MapOutcome(stats, window, keyframe, added, timings["map"], timings)
+
+    def fuse_labels(
+        self,
+        view: CompactFrame,
+        labels: np.ndarray,  # [H, W] class ids at the view's size
+        between_iterations: Callable[[], bool] | None = None,
+        before_publish: Callable[[], None] | None = None,
+    ) -> MapOutcome:
+        """Fuse a label image that came after its view (``view``: as mapped, its pose the mapped one).
+
+        The unlabelled Gaussians the view sees take its classes (:func:`label_unlabelled`), a held
+        keyframe of the view keeps the labels for later windows (a view with no labelled keyframe
+        within ``keyframes.every`` frames becomes one), and the map is optimised on the labelled
+        view's window (``between_iterations`` as in :meth:`map`). Raises
+        :class:`FrameError` when the labels do not fit the view.
+        """
+        t0 = time.perf_counter()
+        frame = Frame(view.rgb, view.depth_m, view.intrinsics, labels, view.stamp_ns, None, view.index)
+        self._see_labels(frame)
+        data = self._frame_tensors(frame, view.index)
+        w2c = torch.as_tensor(view.w2c, dtype=torch.float32, device=self.device)
+        gaussians, _ = label_unlabelled(self.gaussians, data, w2c)
+        keyframe = self.keyframes.attach_labels(view.index, labels)
+        if not keyframe and not self.keyframes.labelled_near(view.index, self.config.keyframes.every):
+            # labels come rarer than keyframes: a labelled view supervises later windows' semantics
+            self.keyframes.add(replace(view, labels=compact_labels(labels)))
+            keyframe = True
+        stats, window = None, None
+        if self.config.mapping.iterations > 0 and len(gaussians):
+            c2w = np.linalg.inv(view.w2c)
+            window = choose_window(self.keyframes, data, c2w, labels, self.config.keyframes, self.rng)
+            frames = upload_window(self.keyframes, window, data, c2w, self.codec, self.edits)
+            gaussians, stats = self._optimised(gaussians, frames, True, between_iterations)
+        gaussians, stale = self._labelled(gaussians, True, keyframe=True)  # classes changed: re-decode them
+        if before_publish is not None:
+            before_publish()
+        self.gaussians, self._labels_stale = gaussians, stale
+        return MapOutcome(stats, window, keyframe, 0, time.perf_counter() - t0)
 
     def _densified(
         self, data: FrameTensors, frame: Frame, c2w: np.ndarray, rendered: RenderOutput | None

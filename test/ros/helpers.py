@@ -126,10 +126,13 @@ class Feeder(Node):
         )
 
     def connected(self, subscribers: int = 1) -> bool:
-        """Whether every input topic, camera_info included, has ``subscribers`` matched readers and the
-        pose topic a matched writer: a message sent before its reader matched is lost (volatile QoS)."""
-        pubs = [*self.pubs.values(), self.info_pub]
+        """Whether every camera topic, camera_info included, has ``subscribers`` matched readers (labels: one,
+        the node that maps) and the pose topic a matched writer: a message sent before its reader matched
+        is lost (volatile QoS)."""
+        pubs = [p for name, p in self.pubs.items() if name != "/semantic/image"] + [self.info_pub]
         inputs = all(p.get_subscription_count() >= subscribers for p in pubs)
+        labels = self.pubs.get("/semantic/image")
+        inputs = inputs and (labels is None or labels.get_subscription_count() >= 1)
         return inputs and self.pose_sub.get_publisher_count() >= 1
 
     def publish(

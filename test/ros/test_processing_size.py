@@ -17,28 +17,33 @@ pytestmark = pytest.mark.ros
 
 
 def assemble(frame, downscale: float):
-    out, logs = [], []
-    a = FrameAssembler(True, 10, 0, 1000.0, out.append, logs.append, downscale=downscale)
+    out, logs, labels = [], [], []
+    a = FrameAssembler(
+        10, 0, 1000.0, out.append, logs.append, downscale=downscale, on_labels=lambda *x: labels.append(x)
+    )
     a.camera_info(camera_info_msg(frame.intrinsics, frame.stamp_ns, "cam"))
     a.image(0, image_msg(frame.rgb, "rgb8", frame.stamp_ns, "cam"))
     a.image(1, image_msg((frame.depth * 1000).round().astype(np.uint16), "16UC1", frame.stamp_ns, "cam"))
-    a.image(2, image_msg(frame.labels.astype(np.uint16), "16UC1", frame.stamp_ns, "cam"))
-    return a, out, logs
+    a.label_image(image_msg(frame.labels.astype(np.uint16), "16UC1", frame.stamp_ns, "cam"))
+    return a, out, logs, labels
 
 
-def test_frames_are_resized_as_the_dataset_reader_does(tiny_scene):
+def test_frames_and_their_labels_are_resized_as_the_dataset_reader_does(tiny_scene):
     frame = tiny_frames(tiny_scene)[3]
-    a, out, _ = assemble(frame, 2.0)
+    a, out, _, labels = assemble(frame, 2.0)
     offline = open_dataset(tiny_scene, options=DatasetOptions(downscale=2.0))[3]
     (got,) = out
     assert got.intrinsics == offline.intrinsics and got.rgb.shape == (24, 32, 3)
-    assert np.array_equal(got.rgb, offline.rgb) and np.array_equal(got.labels, offline.labels)
+    assert got.labels is None  # labels come apart from the frames: tracking never waits for them
+    ((stamp, got_labels),) = labels
+    assert stamp == frame.stamp_ns and np.array_equal(got_labels, offline.labels)
+    assert np.array_equal(got.rgb, offline.rgb)
     assert np.allclose(got.depth, offline.depth, atol=5e-4)  # the node's depth came as millimetres
     assert a.input_size == (64, 48) and a.processing_size == (32, 24)
 
 
 def test_a_downscale_that_leaves_too_small_a_frame_is_rejected_and_counted(tiny_scene):
-    a, out, logs = assemble(tiny_frames(tiny_scene)[0], 4.0)  # 64x48 / 4 = 16x12
+    a, out, logs, _ = assemble(tiny_frames(tiny_scene)[0], 4.0)  # 64x48 / 4 = 16x12
     assert out == [] and a.rejected["downscale leaves too small a frame"] == 1
     assert "16x12" in logs[0] and "at least 16x16" in logs[0]
 

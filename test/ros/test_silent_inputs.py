@@ -35,10 +35,9 @@ def test_missing_label_topic_is_reported_once_and_clears(tiny_scene):
             time.sleep(0.1)
         assert wait_for(lambda: diagnostics_of(diag, "tracking_node"), 3.0)
         level, message, values = diagnostics_of(diag, "tracking_node")[-1]
-        assert level == WARN and "/semantic/image" in message, message
+        assert level == WARN and "/semantic/image" in message and "no labels" in message, message
         assert values["silent_inputs"] == "/semantic/image"
-        assert int(values["frames_in"]) >= 20 and values["frames_tracked"] == "0"
-        assert int(values["frames_waiting"]) + int(values["frames_dropped"]) == int(values["frames_in"])
+        assert int(values["frames_in"]) >= 20 and int(values["frames_tracked"]) >= 1  # frames never wait for labels
         warnings = [m.msg for m in logs if m.name == "tracking_node" and "is silent" in m.msg]
         assert len(warnings) == 1, warnings  # once, not once a second
         assert "/semantic/image" in warnings[0] and "use_semantics:=false" in warnings[0]
