@@ -331,7 +331,10 @@ class SlamPipeline:
         result = None
         try:
             with self._on_map_stream():
-                result = self.slam.fuse_labels(late.view, late.labels, self._between_map_steps, self._finish_map_stream)
+                optimise = self.lockstep or not self._frame_waiting()
+                result = self.slam.fuse_labels(
+                    late.view, late.labels, self._between_map_steps, self._finish_map_stream, optimise
+                )
         except _StoppingError:
             pass
         except Exception as err:

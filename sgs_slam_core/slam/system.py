@@ -228,6 +228,8 @@ class Slam:
                 window = choose_window(self.keyframes, data, tracked.c2w, frame.labels, self.config.keyframes, self.rng)
             timings["keyframe_selection"] = time.perf_counter() - t_sel
             frames = upload_window(self.keyframes, window, data, tracked.c2w, self.codec, self.edits)
+            # keyframes whose labels came late supervise the semantics of a frame that has none (yet)
+            use_sem = use_sem or any(wf.has_semantic for wf in frames)
             gaussians, stats = self._optimised(gaussians, frames, use_sem, between_iterations)
         keyframe = self._keyframe_due(tracked.index)
         gaussians, stale = self._labelled(gaussians, use_sem, keyframe)
@@ -246,14 +248,17 @@ class Slam:
         labels: np.ndarray,  # [H, W] class ids at the view's size
         between_iterations: Callable[[], bool] | None = None,
         before_publish: Callable[[], None] | None = None,
+        optimise: bool = True,
     ) -> MapOutcome:
         """Fuse a label image that came after its view (``view``: as mapped, its pose the mapped one).
 
         The unlabelled Gaussians the view sees take its classes (:func:`label_unlabelled`), a held
         keyframe of the view keeps the labels for later windows (a view with no labelled keyframe
-        within ``keyframes.every`` frames becomes one), and the map is optimised on the labelled
-        view's window (``between_iterations`` as in :meth:`map`). Raises
-        :class:`FrameError` when the labels do not fit the view.
+        within ``keyframes.every`` frames becomes one), and with ``optimise`` the map is optimised on
+        the labelled view's window (``between_iterations`` as in :meth:`map`; live, a frame that
+        waits skips it: choosing and loading a window costs milliseconds). The classes are
+        re-decoded as after a mapped frame (``mapping.refresh_labels*``). Raises :class:`FrameError`
+        when the labels do not fit the view.
         """
         t0 = time.perf_counter()
         frame = Frame(view.rgb, view.depth_m, view.intrinsics, labels, view.stamp_ns, None, view.index)
@@ -267,12 +272,12 @@ class Slam:
             self.keyframes.add(replace(view, labels=compact_labels(labels)))
             keyframe = True
         stats, window = None, None
-        if self.config.mapping.iterations > 0 and len(gaussians):
+        if optimise and self.config.mapping.iterations > 0 and len(gaussians):
             c2w = np.linalg.inv(view.w2c)
             window = choose_window(self.keyframes, data, c2w, labels, self.config.keyframes, self.rng)
             frames = upload_window(self.keyframes, window, data, c2w, self.codec, self.edits)
             gaussians, stats = self._optimised(gaussians, frames, True, between_iterations)
-        gaussians, stale = self._labelled(gaussians, True, keyframe=True)  # classes changed: re-decode them
+        gaussians, stale = self._labelled(gaussians, True, keyframe=False)
         if before_publish is not None:
             before_publish()
         self.gaussians, self._labels_stale = gaussians, stale
