@@ -83,7 +83,6 @@ class FrameAssembler:
         self._queue_size = queue_size
         self.frame_id = ""  # header.frame_id of the latest colour image that became a frame
         self.colour_in = 0  # colour images received
-        self.labels_in = 0  # label images received (handed on, or rejected)
         self._waiting_dropped = 0  # sets waiting for camera_info dropped by a reset
 
     @property
@@ -141,7 +140,6 @@ class FrameAssembler:
         One that comes before any camera_info waits for it (as frames do), up to ``queue_size``.
         """
         with self._lock:
-            self.labels_in += 1
             k = self.intrinsics
             if k is None:
                 self._labels_waiting.append(msg)

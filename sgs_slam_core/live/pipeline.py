@@ -306,25 +306,25 @@ class SlamPipeline:
                 pass  # shutting down: this frame's mapping is abandoned, the map keeps its last version
             except Exception as err:
                 self._error("mapping", err)
+            view = self._view(job, tracked) if result is not None and tracked is not None else None
             with self._cv:
                 self._busy["map"] = False
                 self.stats.mapped += int(result is not None)
                 self.stats.map_steps += result.stats.iterations if result is not None and result.stats else 0
-                if result is not None and tracked is not None and not tracked.failed and not tracked.lost:
-                    self._keep_view(job, tracked)
+                if view is not None:  # with the hand-over: a lockstep tracker waits for its label jobs too
+                    self._label_jobs.extend(self._labels.add_view(*view))
                 self._cv.notify_all()
             if result is not None and tracked is not None:
                 self._notify("publishing the map", self.map_listeners, job.frame, tracked, result)
 
-    def _keep_view(self, job: MapJob, tracked: TrackOutcome) -> None:
-        """Keep a mapped frame for the label image that may come for it (under the lock)."""
-        if not self._labels.enabled:
-            return
+    def _view(self, job: MapJob, tracked: TrackOutcome) -> tuple[CompactFrame, float] | None:
+        """A mapped frame as kept for the label image that may come for it, and its arrival (s); None: not kept."""
+        if not self._labels.enabled or tracked.failed or tracked.lost:
+            return None
         f = job.frame
         stored = Frame(f.rgb, f.depth, f.intrinsics, None, f.stamp_ns, None, tracked.index)
         view = CompactFrame.from_frame(stored, np.linalg.inv(tracked.c2w))
-        received_at = time.monotonic() if job.received_at is None else job.received_at
-        self._label_jobs.extend(self._labels.add_view(view, received_at))
+        return view, time.monotonic() if job.received_at is None else job.received_at
 
     def _fuse(self, late: LateLabels) -> None:
         """Fuse one matched label image into the map (the mapping thread, busy)."""

@@ -73,5 +73,11 @@ def test_slam_node_tracks_and_renders_at_the_processing_size(tiny_scene):
         assert (v["input_size"], v["processing_size"], v["downscale"]) == ("64x48", "32x24", "2")
         _, _, m = diagnostics_of(diag, "mapping_node")[-1]
         assert m["render_size"] == "32x24"
+
+        def labels_counted() -> bool:  # each label image came apart from its frame and was fused into the map
+            _, _, m = diagnostics_of(diag, "mapping_node")[-1]
+            return m["labels_in"] == "3" and int(m["labels_fused"]) >= 1 and m["label_latency_ms"] != "n/a"
+
+        assert wait_for(labels_counted, 10.0)
     finally:
         shut_down(ctx, [*nodes, feeder], spinner)
