@@ -96,7 +96,7 @@ class MappingNode(Node):
             self._subscribe_inputs(pipeline)
         self.pipeline = pipeline
         pipeline.map_listeners.append(self._on_mapped)
-        pipeline.label_listeners.append(lambda *_: self._map_changed())  # late labels changed the classes
+        pipeline.label_listeners.append(lambda *_: self._classes_changed())
         out = output_qos(2)
         self.color_pub = self.create_publisher(Image, "~/render/color", out)
         self.semantic_pub = self.create_publisher(Image, "~/render/semantic", out)
@@ -178,6 +178,11 @@ class MappingNode(Node):
         self._map_changed()
         if self.params["lockstep"]:
             self.gaussians_out.now()  # a tracker in another process waits for this map
+
+    def _classes_changed(self) -> None:
+        """Late labels changed classes: the clouds publish them; the renders wait for the next mapped frame's view."""
+        self.points_out.mark()
+        self.gaussians_out.mark()
 
     def _map_changed(self) -> None:
         """New content: each output publishes it once, at most at its rate."""

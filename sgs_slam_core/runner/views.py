@@ -69,7 +69,9 @@ class MapViews:
         return render(self.gaussians, k, w2c, self.settings, with_semantics=semantic and self.codec.num_channels > 0)
 
     def write(self, poses: Sequence[np.ndarray], k: Intrinsics, out_dir: Path, semantic: bool) -> list[Path]:
-        """``color_NNNNN.png``, ``depth_NNNNN.png`` (uint16 mm) and with ``semantic`` ``semantic_NNNNN.png``."""
+        """``color_NNNNN.png``, ``depth_NNNNN.png`` (uint16 mm) and with ``semantic`` ``semantic_NNNNN.png``
+        (the classes' colours) and ``labels_NNNNN.png`` (uint16 class ids, 0 where nothing is mapped), which
+        any tool can score against its own ground truth."""
         make_dir(out_dir)
         written = []
         for i, c2w in enumerate(poses):
@@ -85,5 +87,7 @@ class MapViews:
                 labels[out.silhouette.cpu().numpy() < 0.5] = 0
                 paths.append(out_dir / f"semantic_{i:05d}.png")
                 write_image(paths[-1], self.saved.label_table.colorize(labels)[..., ::-1])
+                paths.append(out_dir / f"labels_{i:05d}.png")
+                write_image(paths[-1], np.clip(labels, 0, 65535).astype(np.uint16))
             written += paths
         return written

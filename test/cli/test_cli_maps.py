@@ -87,6 +87,8 @@ def test_render_views_from_a_matrix_a_trajectory_and_an_orbit(map_path, tmp_path
     sem = cv2.imread(str(tmp_path / "one" / "semantic_00000.png"))[..., ::-1]
     assert sem.shape == (K.height, K.width, 3)
     assert np.all(sem[K.height // 2, K.width // 2] == TABLE.color_of(BOX))  # the box in the middle
+    ids = cv2.imread(str(tmp_path / "one" / "labels_00000.png"), cv2.IMREAD_UNCHANGED)
+    assert ids.dtype == np.uint16 and ids[K.height // 2, K.width // 2] == BOX  # the class id, for any scorer
     depth = cv2.imread(str(tmp_path / "one" / "depth_00000.png"), cv2.IMREAD_UNCHANGED)
     assert depth.dtype == np.uint16 and abs(int(depth[K.height // 2, K.width // 2]) - 2000) < 30  # mm
 
