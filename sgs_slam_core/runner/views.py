@@ -69,9 +69,11 @@ class MapViews:
         return render(self.gaussians, k, w2c, self.settings, with_semantics=semantic and self.codec.num_channels > 0)
 
     def write(self, poses: Sequence[np.ndarray], k: Intrinsics, out_dir: Path, semantic: bool) -> list[Path]:
-        """``color_NNNNN.png``, ``depth_NNNNN.png`` (uint16 mm) and with ``semantic`` ``semantic_NNNNN.png``
-        (the classes' colours) and ``labels_NNNNN.png`` (uint16 class ids, 0 where nothing is mapped), which
-        any tool can score against its own ground truth."""
+        """Write ``color_NNNNN.png``, ``depth_NNNNN.png`` (uint16 mm) and, with ``semantic``, the classes.
+
+        ``semantic_NNNNN.png`` holds the classes' colours, ``labels_NNNNN.png`` their ids (uint16, 0 where
+        nothing is mapped), which any tool can score against its own ground truth.
+        """
         make_dir(out_dir)
         written = []
         for i, c2w in enumerate(poses):
