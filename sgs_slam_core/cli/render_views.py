@@ -53,7 +53,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help=f"orbit camera elevation in degrees ({_ELEVATION.bounds}, default 30)",
     )
     p.add_argument("--out", type=Path, required=True, help="output folder (created; existing images are replaced)")
-    p.add_argument("--semantic", action="store_true", help="also write the semantic colour images and the class ids (uint16 PNG)")
+    p.add_argument(
+        "--semantic", action="store_true", help="also write the semantic colour images and the class ids (uint16 PNG)"
+    )
     p.add_argument(
         "--width", type=_SIDE, help=f"image width in px ({_SIDE.bounds}; default: the map's camera, else 640)"
     )
