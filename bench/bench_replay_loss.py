@@ -83,6 +83,8 @@ def replay(
             f"use_semantics:={str(semantics).lower()}",
             "-p",
             f"downscale:={downscale}",
+            "-p",
+            "save_on_shutdown:=false",  # a benchmark's map is not kept
             *(a for param in params for a in ("-p", param)),
             *(a for r in REMAPS for a in ("-r", r)),
         ],

@@ -11,10 +11,16 @@ publishes the empty map), ``~/pause`` (SetBool), ``~/apply_edit`` (Trigger: the 
 parameters describe) and ``~/undo_edit`` (Trigger: revert the last edit and unlock its classes).
 Standalone (``pose_source:=topic``) it subscribes the camera topics and ``tracking_node/pose`` and
 maps frames whose stamps match a pose exactly.
+
+The map outlives the process: autosaves every ``autosave_period_s`` (written beside tracking), a
+save when the process is stopped (``save_on_shutdown``, from :meth:`MappingNode.finish`), and a map
+loaded at start (``load_map_on_start``) in which the camera is relocalized before mapping goes on.
+A loaded map (at start or by ``~/load_map``) is relocalized in the same way.
 """
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections import OrderedDict
@@ -35,7 +41,8 @@ from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.frame_ids import CAMERA_FRAME
 from sgs_slam_core.live import MapJob, PipelineStats, SlamPipeline
-from sgs_slam_core.mapio import load_map, save_map
+from sgs_slam_core.live.map_saver import MapSaver, SaveStats
+from sgs_slam_core.mapio import MapFile, load_map
 from sgs_slam_core.slam.footprint import footprint
 from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
 from sgs_slam_ros.activity import Activity
@@ -51,6 +58,14 @@ from sgs_slam_ros.timers import Throttled
 __all__ = ["MappingNode", "main"]
 
 _PENDING = 64  # frames / poses kept while waiting for their partner (standalone)
+_FINISH_S = 60.0  # at shutdown: how long the frames in hand may take before the map is saved
+
+
+def map_file_path(value: str) -> FilePath:
+    """The ``map_path`` parameter as a path: '' is ``$ROS_HOME/sgs_slam/map.sgsmap`` (ROS_HOME: ~/.ros)."""
+    if value:
+        return FilePath(value).expanduser()
+    return FilePath(os.environ.get("ROS_HOME") or "~/.ros").expanduser() / "sgs_slam" / "map.sgsmap"
 
 
 class _View(NamedTuple):
@@ -95,6 +110,7 @@ class MappingNode(Node):
             )
             self._subscribe_inputs(pipeline)
         self.pipeline = pipeline
+        self.saver = self._saver()
         pipeline.map_listeners.append(self._on_mapped)
         pipeline.label_listeners.append(lambda *_: self._classes_changed())
         out = output_qos(2)
@@ -118,6 +134,16 @@ class MappingNode(Node):
         self.create_service(Trigger, "~/apply_edit", self._apply_edit)
         self.create_service(Trigger, "~/undo_edit", self._undo_edit)
         self.diagnostics = Diagnostics(self, self._status)
+        if self.params["load_map_on_start"]:
+            self._load_on_start()
+
+    def _saver(self) -> MapSaver:
+        """The map file's saver: on request, every ``autosave_period_s``, at shutdown; follows ``map_path``."""
+        log = self.get_logger()
+        path = map_file_path(self.params["map_path"])
+        saver = MapSaver(path, self.pipeline.map_file, self.params["autosave_period_s"], log.info, log.error)
+        self.params.on_change["map_path"] = lambda value: saver.move_to(map_file_path(value))
+        return saver
 
     # ------------------------------------------------------------------ standalone inputs
     def _subscribe_inputs(self, pipeline: SlamPipeline) -> None:
@@ -181,11 +207,13 @@ class MappingNode(Node):
 
     def _classes_changed(self) -> None:
         """Late labels changed classes: the clouds publish them; the renders wait for the next mapped frame's view."""
+        self.saver.mark_changed()
         self.points_out.mark()
         self.gaussians_out.mark()
 
     def _map_changed(self) -> None:
-        """New content: each output publishes it once, at most at its rate."""
+        """New content: each output publishes it once, at most at its rate, and the next save writes it."""
+        self.saver.mark_changed()
         self.renders.mark()
         self.points_out.mark()
         self.gaussians_out.mark()
@@ -239,35 +267,46 @@ class MappingNode(Node):
 
     # ------------------------------------------------------------------ services
     def _save_map(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        path = FilePath(self.params["map_path"])
-        try:
-            with self.pipeline.exclusive():
-                self.pipeline.slam.refresh_labels()  # live: the classes are re-decoded at keyframes only
-                m = self.pipeline.slam.to_map_file()
-                save_map(path, m)
-            response.success, response.message = True, f"saved {len(m.gaussians)} Gaussians to {path}"
-        except (OSError, SgsSlamError, TimeoutError) as err:
-            response.success, response.message = False, f"cannot save {path}: {err}"
+        outcome = self.saver.save()
+        response.success, response.message = outcome.saved, outcome.message
         return response
 
     def _load_map(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        path = FilePath(self.params["map_path"])
         try:
-            saved = load_map(path, self.pipeline.slam.device)
-            with self.pipeline.exclusive():
-                self.pipeline.slam.load_map(saved)
-            if self.camera is not None:
-                self.camera.assembler.reset()
-            if saved.trajectory:  # render the loaded map from its last pose until new frames are mapped
-                _, stamp, c2w = saved.trajectory[-1]
-                self.last_mapped_stamp = stamp
-                self._view = _View(stamp, np.asarray(c2w, dtype=np.float64), self.camera_frame())
-            self._map_changed()
-            self.gaussians_out.now()
-            response.success, response.message = True, f"loaded {len(saved.gaussians)} Gaussians from {path}"
+            saved = self.load(self.saver.path)
+            response.success, response.message = True, _loaded(saved, self.saver.path)
         except (OSError, SgsSlamError, TimeoutError) as err:
-            response.success, response.message = False, f"cannot load {path}: {err}"
+            response.success, response.message = False, f"cannot load {self.saver.path}: {err}"
         return response
+
+    def _load_on_start(self) -> None:
+        """``load_map_on_start``: go on in the saved map if there is one; an unreadable one stops the node."""
+        path = self.saver.path
+        if not path.exists():
+            self.get_logger().info(f"no map at {path} yet: starting a new one")
+            return
+        try:
+            saved = self.load(path)
+        except (SgsSlamError, TimeoutError) as err:
+            self.close()
+            raise SgsSlamError(f"{err} (move it away, or start with load_map_on_start:=false)") from err
+        self.get_logger().info(_loaded(saved, path))
+
+    def load(self, path: FilePath) -> MapFile:
+        """Load the map at ``path`` and go on in it: the next frames are relocalized in it before mapping."""
+        saved = load_map(path, self.pipeline.slam.device)
+        with self.saver.held():  # no autosave of the map being replaced lands after the load
+            self.pipeline.load_map(saved, relocalize=True)
+        if self.camera is not None:
+            self.camera.assembler.reset()
+        if saved.trajectory:  # render the loaded map from its last pose until new frames are mapped
+            _, stamp, c2w = saved.trajectory[-1]
+            self.last_mapped_stamp = stamp
+            self._view = _View(stamp, np.asarray(c2w, dtype=np.float64), self.camera_frame())
+        self._map_changed()
+        self.saver.mark_saved()  # what the outputs publish is the file's map
+        self.gaussians_out.now()
+        return saved
 
     def _apply_edit(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         done = []
@@ -313,7 +352,11 @@ class MappingNode(Node):
         return response
 
     def after_reset(self) -> None:
-        """Forget this node's per-run state and publish the empty map (latched viewers clear)."""
+        """Forget this node's per-run state and publish the empty map (latched viewers clear).
+
+        The map file is left as it is: an empty map is not saved over it.
+        """
+        self.saver.mark_saved()
         if self.camera is not None:
             self.camera.reset()
         with self._pair_lock:
@@ -334,6 +377,8 @@ class MappingNode(Node):
         level, message = OK, "paused" if self.pipeline.paused else "mapping"
         if st.errors:
             level, message = WARN, f"errors: {st.last_error}"
+        if self.saver.stats.last_error:
+            level, message = WARN, f"map not saved: {self.saver.stats.last_error}"
         values = {
             "processing_rate_hz": f"{self.mapped_rate.rate():.2f}",
             "frames_mapped": str(st.mapped),
@@ -344,6 +389,7 @@ class MappingNode(Node):
             **_label_counts(st),
             "locked_classes": " ".join(str(i) for i in sorted(self.pipeline.slam.locked_labels)) or "none",
             "undoable_edits": str(self.pipeline.slam.edits.depth),
+            **_save_values(self.saver.path, self.saver.stats),
             "renders_published": str(self.renders.count),
             "render_size": "n/a"
             if self.pipeline.slam.intrinsics is None
@@ -358,10 +404,53 @@ class MappingNode(Node):
                 level, message = warning
         return level, message, values
 
+    def finish(self) -> None:
+        """Before the process exits (SIGINT, SIGTERM): finish the frames in hand, then save the map.
+
+        Saved (``save_on_shutdown``) only if it changed since it was last saved or loaded. A
+        second signal exits at once (:mod:`sgs_slam_ros.runtime`), leaving the last complete file.
+        """
+        self.saver.close()
+        if not self.params["save_on_shutdown"]:
+            return
+        log = self.get_logger()
+        if not self.pipeline.wait_idle(_FINISH_S):
+            log.warn(f"the frames in hand did not finish within {_FINISH_S:.0f} s: saving the map as it is")
+        if not self.saver.changed:
+            log.info(f"map unchanged since it was last saved or loaded: {self.saver.path} left as it is")
+            return
+        outcome = self.saver.save()
+        if outcome.saved:
+            log.info(f"at shutdown: {outcome.message}")
+
     def close(self) -> None:
-        """Stop the workers this node owns."""
+        """Stop autosaving and the workers this node owns."""
+        self.saver.close()
         if self._owns_pipeline:
             self.pipeline.shutdown()
+
+
+def _loaded(saved: MapFile, path: FilePath) -> str:
+    return (
+        f"loaded {len(saved.gaussians)} Gaussians, {len(saved.keyframes)} keyframes and {len(saved.trajectory)} "
+        f"poses from {path}; the camera is relocalized in it before mapping goes on"
+    )
+
+
+def _save_values(path: FilePath, s: SaveStats) -> dict[str, str]:
+    """The map file's saves for /diagnostics: counts, and the last one's age, size and time."""
+    age = "n/a" if s.last_saved_at is None else f"{time.time() - s.last_saved_at:.0f}"
+    return {
+        "map_path": str(path),
+        "map_saves": str(s.saves),
+        "map_save_failures": str(s.failures),
+        "last_save_age_s": age,
+        "last_save_frames": str(s.last_frames),
+        "last_save_mb": f"{s.last_bytes / 2**20:.1f}",
+        "last_save_ms": f"{1e3 * (s.last_snapshot_s + s.last_write_s):.0f}",
+        "last_save_hold_ms": f"{1e3 * s.last_snapshot_s:.1f}",  # how long the snapshot held tracking and mapping
+        "last_save_error": s.last_error or "none",
+    }
 
 
 def _label_counts(st: PipelineStats) -> dict[str, str]:

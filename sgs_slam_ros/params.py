@@ -169,7 +169,31 @@ MAPPING = (
         bounds=(0.0, 30.0),
     ),
     ParamSpec("points_max", 200000, "max points in ~/points (random subset beyond)", bounds=(100, 10000000)),
-    ParamSpec("map_path", "map.sgsmap", "file used by ~/save_map and ~/load_map"),
+    ParamSpec(
+        "map_path",
+        "",
+        "the map file of ~/save_map, ~/load_map, autosaves and the save at shutdown "
+        "('' = $ROS_HOME/sgs_slam/map.sgsmap, ROS_HOME defaulting to ~/.ros)",
+    ),
+    ParamSpec(
+        "autosave_period_s",
+        0.0,
+        "seconds between saves of the map to map_path while it changes, written beside tracking (0 = off)",
+        bounds=(0.0, 86400.0),
+        read_only=True,
+    ),
+    ParamSpec(
+        "save_on_shutdown",
+        True,
+        "on SIGINT/SIGTERM: finish the frames in hand, then save the map to map_path if it changed",
+        read_only=True,
+    ),
+    ParamSpec(
+        "load_map_on_start",
+        False,
+        "load map_path at start when it exists and relocalize in it before mapping (resume after a stop or crash)",
+        read_only=True,
+    ),
 )
 EDIT = (  # read when ~/apply_edit is called
     ParamSpec("edit.remove_labels", [], "classes (names or ids) that ~/apply_edit removes", string_list=True),

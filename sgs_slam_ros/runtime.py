@@ -5,8 +5,9 @@ unknown preset or config key) prints one line naming it and exits 1, never a tra
 
 SIGINT and SIGTERM are handled here rather than by rclpy: rclpy's handler shuts the context down at
 once, while a SLAM worker thread may be publishing on it (seen as a SIGSEGV at Ctrl-C). Here a
-signal only stops the spin loop; the nodes' workers are stopped before the context goes. A second
-signal exits at once, without waiting for the workers.
+signal only stops the spin loop; each node's ``finish()`` (where it has one: the mapping node saves
+its map) runs, then the nodes' workers are stopped before the context goes. A second signal exits
+at once, without waiting for either.
 
 Before ``rclpy.init`` the process's DDS transport is chosen (``--transport shm|default`` before
 ``--ros-args``; shm by default: see :mod:`sgs_slam_ros.transport`).
@@ -140,7 +141,11 @@ def run_nodes(build: Callable[[], Sequence[Node]], args: Sequence[str] | None = 
         except USER_ERRORS as err:
             return _fail(argv, err)
         finally:
-            for node in nodes:  # workers first: they publish through the nodes and the context
+            for node in nodes:  # the work in hand first (e.g. the map saved), while every node still runs
+                finish = getattr(node, "finish", None)
+                if finish:
+                    finish()
+            for node in nodes:  # workers next: they publish through the nodes and the context
                 close = getattr(node, "close", None)
                 if close:
                     close()

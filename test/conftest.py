@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+# nodes stopped by a signal save their map under $ROS_HOME: the tests' nodes (and their children) in a scratch one
+os.environ["ROS_HOME"] = tempfile.mkdtemp(prefix="sgs-slam-test-ros-home-")
+atexit.register(shutil.rmtree, os.environ["ROS_HOME"], ignore_errors=True)
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -53,6 +53,7 @@ from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.live.label_matcher import LabelCounts, LabelMatcher, LateLabels
+from sgs_slam_core.mapio import MapFile
 from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.slam.guard import TrackingState
@@ -459,6 +460,29 @@ class SlamPipeline:
         w2c = torch.as_tensor(np.linalg.inv(c2w), dtype=torch.float32, device=self.slam.device)
         with torch.no_grad():
             return self.slam.kernels.render(snapshot.gaussians, snapshot.intrinsics, w2c)
+
+    def map_file(self, keyframe_images: int = 16, timeout: float = 30.0) -> MapFile:
+        """The map, its keyframes and trajectory between two steps of the workers (for saving).
+
+        Holds the workers only while the classes are re-decoded and the parts are gathered: the
+        map is immutable, so the snapshot references it. ``TimeoutError`` if they stay busy
+        ``timeout`` s.
+        """
+        with self.exclusive(timeout):
+            self.slam.refresh_labels()
+            return self.slam.to_map_file(keyframe_images)
+
+    def load_map(self, saved: MapFile, relocalize: bool = False, timeout: float = 30.0) -> None:
+        """Go on mapping in ``saved`` (queued work and kept views dropped); see :meth:`Slam.load_map`."""
+        with self.exclusive(timeout):
+            self.stats.dropped_frames += len(self._frames)
+            self.stats.dropped_jobs += len(self._jobs)
+            self._frames.clear()
+            self._jobs.clear()
+            self._label_jobs.clear()
+            self._labels.clear()
+            self.slam.load_map(saved, relocalize)
+            self.stats.tracking_state = self.slam.guard.state
 
     def replace_map(self, gaussians: GaussianMap) -> None:
         """Track against ``gaussians`` from now on (a mapper's map from another process)."""

@@ -90,8 +90,8 @@ def _host(pose: np.ndarray) -> torch.Tensor:  # [4, 4] float64 on the CPU (files
     return torch.as_tensor(pose, dtype=torch.float64, device="cpu")
 
 
-def save_map(path: str | Path, m: MapFile) -> None:
-    """Write ``m`` to ``path`` atomically (a crash leaves any previous file intact)."""
+def save_map(path: str | Path, m: MapFile) -> int:
+    """Write ``m`` to ``path`` atomically (a crash leaves any previous file intact); returns its size (bytes)."""
     payload = {
         "format": FORMAT,
         "version": VERSION,
@@ -110,6 +110,7 @@ def save_map(path: str | Path, m: MapFile) -> None:
     buffer = io.BytesIO()  # torch.save turns a failing file write (disk full) into a RuntimeError: write it ourselves
     torch.save(payload, buffer)
     atomic_write(path, lambda f: f.write(buffer.getbuffer()))
+    return buffer.getbuffer().nbytes
 
 
 def load_map(path: str | Path, device: torch.device | str = "cpu") -> MapFile:
@@ -120,7 +121,8 @@ def load_map(path: str | Path, device: torch.device | str = "cpu") -> MapFile:
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except (RuntimeError, EOFError, OSError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as err:
-        raise MapFileError(f"map file {path} is truncated or not a map ({type(err).__name__}: {err})") from err
+        detail = str(err).splitlines()[0][:200] if str(err) else ""  # torch's messages run to paragraphs
+        raise MapFileError(f"map file {path} is truncated or not a map ({type(err).__name__}: {detail})") from err
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise MapFileError(f"{path} is not an SGS-SLAM map (format tag missing)")
     if data.get("version") != VERSION:

@@ -124,6 +124,10 @@ class TrackingGuard:
             self.state = "ok"
         return self.state
 
+    def start_lost(self) -> None:
+        """The camera's place is unknown (a map loaded to resume in): relocalize before tracking."""
+        self.state = "lost"
+
     def relocalized(self) -> TrackingState:
         """A lost camera was found again by this frame: tracking goes on from it."""
         self.state = "relocalized"

@@ -346,8 +346,15 @@ class Slam:
         return self.edits.locked_labels
 
     # ------------------------------------------------------------------ map files
-    def load_map(self, saved: MapFile) -> None:
-        """Resume in a saved map: the next frame is tracked against it, starting at its last pose."""
+    def load_map(self, saved: MapFile, relocalize: bool = False) -> None:
+        """Resume in a saved map: the next frame is tracked against it, starting at its last pose.
+
+        ``relocalize``: the camera may have moved since the map was saved (a restart after a
+        crash), so the next frames are relocalized against the saved keyframes, as a lost camera's
+        are, and nothing is mapped until one is placed. Needs the relocalizer (features on,
+        ``guard.lost_after`` > 0) and keyframe images in the file; without them the last pose is
+        the start.
+        """
         if saved.gaussians.num_semantic != self.codec.num_channels:
             raise FrameError(
                 f"the map has {saved.gaussians.num_semantic} semantic channels but semantic.mode={self.codec.mode} "
@@ -370,6 +377,9 @@ class Slam:
         if saved.scene_radius is not None:
             self.scene_radius = saved.scene_radius
         self.intrinsics = saved.intrinsics
+        if relocalize and self.localizer.relocalizer is not None and saved.keyframe_images:
+            self.guard.start_lost()
+            self._lost_since = self.frames_processed
 
     def to_map_file(self, keyframe_images: int = 16) -> MapFile:
         """Everything needed to resume, for :func:`~sgs_slam_core.mapio.save_map`.

@@ -127,3 +127,29 @@ def test_a_pose_the_features_contradict_gives_way_to_the_features_pose():
     assert not step.track.failed and step.track.state == "ok"
     assert np.linalg.norm(step.c2w[:3, 3] - truth[:3, 3]) < 0.05  # the features' pose, judged and accepted
     assert step.map.stats is not None  # and mapped
+
+
+def test_a_map_resumed_after_a_restart_is_relocalized_in_before_it_is_mapped_again():
+    """Saved at frame 19; restarted facing a part of the room the map never saw (frames 45-46), then 22-26."""
+    config = load_config("synthetic", overrides=["mapping.iterations=10", "keyframes.every=3"])
+    first = Slam(config)
+    for i in range(20):
+        first.process(room_frame(i))
+    saved = first.to_map_file()
+    resumed = Slam(config)
+    resumed.load_map(saved, relocalize=True)
+    assert resumed.guard.lost and len(resumed.gaussians) == len(saved.gaussians)
+    order = [45, 46, *range(22, 27)]
+    steps = []
+    for n, i in enumerate(order, start=20):  # stamped on after the saved frames
+        f = room_frame(i)
+        steps.append(resumed.process(type(f)(f.rgb, f.depth, f.intrinsics, None, n * 33_333_333, f.gt_c2w, n)))
+    assert [s.track.state for s in steps] == ["lost", "lost", "relocalized", "ok", "ok", "ok", "ok"]
+    for step in steps[:2]:  # nothing mapped before the camera is placed in the map
+        assert step.map.stats is None and step.map.added == 0 and not step.map.keyframe
+    for n, step in zip(order[2:], steps[2:], strict=True):  # poses in the saved map's frame
+        truth = np.linalg.inv(poses()[0]) @ poses()[n]
+        assert np.linalg.norm(step.c2w[:3, 3] - truth[:3, 3]) < 0.01, n
+    again = Slam(config)
+    again.load_map(saved)  # without relocalize: tracked from the saved last pose at once
+    assert not again.guard.lost and again.process(room_frame(20)).track.state == "ok"
