@@ -141,7 +141,8 @@ class MappingNode(Node):
         """The map file's saver: on request, every ``autosave_period_s``, at shutdown; follows ``map_path``."""
         log = self.get_logger()
         path = map_file_path(self.params["map_path"])
-        saver = MapSaver(path, self.pipeline.map_file, self.params["autosave_period_s"], log.info, log.error)
+        p = self.pipeline
+        saver = MapSaver(path, p.map_file, self.params["autosave_period_s"], log.info, log.error, p.background_turn)
         self.params.on_change["map_path"] = lambda value: saver.move_to(map_file_path(value))
         return saver
 
@@ -389,7 +390,7 @@ class MappingNode(Node):
             **_label_counts(st),
             "locked_classes": " ".join(str(i) for i in sorted(self.pipeline.slam.locked_labels)) or "none",
             "undoable_edits": str(self.pipeline.slam.edits.depth),
-            **_save_values(self.saver.path, self.saver.stats),
+            **_save_values(self.saver.path, self.saver.stats, st.snapshot_hold_s),
             "renders_published": str(self.renders.count),
             "render_size": "n/a"
             if self.pipeline.slam.intrinsics is None
@@ -437,7 +438,7 @@ def _loaded(saved: MapFile, path: FilePath) -> str:
     )
 
 
-def _save_values(path: FilePath, s: SaveStats) -> dict[str, str]:
+def _save_values(path: FilePath, s: SaveStats, hold_s: float) -> dict[str, str]:
     """The map file's saves for /diagnostics: counts, and the last one's age, size and time."""
     age = "n/a" if s.last_saved_at is None else f"{time.time() - s.last_saved_at:.0f}"
     return {
@@ -448,7 +449,7 @@ def _save_values(path: FilePath, s: SaveStats) -> dict[str, str]:
         "last_save_frames": str(s.last_frames),
         "last_save_mb": f"{s.last_bytes / 2**20:.1f}",
         "last_save_ms": f"{1e3 * (s.last_snapshot_s + s.last_write_s):.0f}",
-        "last_save_hold_ms": f"{1e3 * s.last_snapshot_s:.1f}",  # how long the snapshot held tracking and mapping
+        "last_save_hold_ms": f"{1e3 * hold_s:.1f}",  # how long the snapshot held tracking and mapping
         "last_save_error": s.last_error or "none",
     }
 

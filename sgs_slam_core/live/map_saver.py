@@ -3,7 +3,7 @@
 A save has two parts. The *snapshot* (``take``: the map, keyframes and trajectory as they are
 between two steps of the SLAM's workers) holds the workers for about a millisecond: the published
 map is immutable, so it is referenced, not copied. The *write* (serialising and writing the file)
-runs on the saver's thread for autosaves, beside tracking, and is atomic
+runs on the saver's thread for autosaves, in turns with tracking on a CPU, and is atomic
 (:func:`~sgs_slam_core.fileio.atomic_write`): a crash, a kill or a full disk during a write leaves
 the previous file complete. One lock orders the writes, so an older snapshot never replaces a newer
 file.
@@ -17,6 +17,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,7 +35,7 @@ class SaveStats:
     failures: int = 0
     last_saved_at: float | None = None  # time.time() of the last successful save (s)
     last_bytes: int = 0  # size of the last file written
-    last_snapshot_s: float = 0.0  # how long the last snapshot held the workers (s)
+    last_snapshot_s: float = 0.0  # how long taking the last snapshot took, the wait for a step boundary included (s)
     last_write_s: float = 0.0  # how long serialising and writing it took (s)
     last_frames: int = 0  # frames processed in the last saved map
     last_error: str = ""  # why the last failed save failed ('' after a success)
@@ -52,8 +53,10 @@ class MapSaver:
     """Writes the map to ``path``: :meth:`save` on the caller's thread, autosaves every ``period_s`` on its own.
 
     ``take()``: a consistent snapshot of the map (raises :class:`SgsSlamError` or ``TimeoutError``
-    when none can be taken). ``log_error``: one line when saves start failing and one when they
-    work again (not one a period); every failure is counted in :attr:`stats`.
+    when none can be taken). ``turn()``: the context each part of an autosave's write runs in
+    (:meth:`SlamPipeline.background_turn`: on the CPU the parts take turns with tracking).
+    ``log_error``: one line when saves start failing and one when they work again (not one a
+    period); every failure is counted in :attr:`stats`.
     """
 
     def __init__(
@@ -63,11 +66,12 @@ class MapSaver:
         period_s: float = 0.0,
         log_info: Callable[[str], None] = print,
         log_error: Callable[[str], None] = print,
+        turn: Callable[[], AbstractContextManager[None]] | None = None,
     ) -> None:
         if period_s < 0:
             raise ValueError(f"autosave period must be >= 0 s, got {period_s}")
         self.path, self.period_s = Path(path), period_s
-        self._take, self._info, self._error = take, log_info, log_error
+        self._take, self._info, self._error, self._turn = take, log_info, log_error, turn
         self.stats = SaveStats()
         self._write_lock = threading.Lock()  # one write at a time, in the order the snapshots were taken
         self._changed = False  # the map changed since the file was written or read
@@ -100,8 +104,11 @@ class MapSaver:
         """Whether the map changed since it was last written or read."""
         return self._changed
 
-    def save(self, only_if_changed: bool = False) -> SaveOutcome:
-        """Snapshot the map and write it now (the caller's thread); ``only_if_changed``: skip an unchanged map."""
+    def save(self, only_if_changed: bool = False, background: bool = False) -> SaveOutcome:
+        """Snapshot the map and write it now (the caller's thread); ``only_if_changed``: skip an unchanged map.
+
+        ``background``: the write takes turns with tracking (``turn``), as autosaves do.
+        """
         with self._write_lock:
             if only_if_changed and not self._changed:
                 return SaveOutcome(False, f"map unchanged since {self.path} was written or read: not saved")
@@ -110,7 +117,7 @@ class MapSaver:
                 t0 = time.perf_counter()
                 snapshot = self._take()
                 t1 = time.perf_counter()
-                size = save_map(self.path, snapshot)
+                size = save_map(self.path, snapshot, self._turn if background else None)
                 t2 = time.perf_counter()
             except (SgsSlamError, TimeoutError, OSError) as err:
                 self._changed = True  # try again next time
@@ -140,7 +147,7 @@ class MapSaver:
 
     def _autosave_loop(self) -> None:
         while not self._stop.wait(self.period_s):
-            self.save(only_if_changed=True)
+            self.save(only_if_changed=True, background=True)
 
     def close(self, timeout: float = 30.0) -> None:
         """Stop autosaving; a write in progress is finished (up to ``timeout`` s)."""

@@ -9,12 +9,15 @@ uint8 labels) so that mapping resumes with its window.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import pickle
 import zipfile
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 import torch
@@ -90,8 +93,16 @@ def _host(pose: np.ndarray) -> torch.Tensor:  # [4, 4] float64 on the CPU (files
     return torch.as_tensor(pose, dtype=torch.float64, device="cpu")
 
 
-def save_map(path: str | Path, m: MapFile) -> int:
-    """Write ``m`` to ``path`` atomically (a crash leaves any previous file intact); returns its size (bytes)."""
+_CHUNK = 2**20  # bytes written in one part of a write in turns
+
+
+def save_map(path: str | Path, m: MapFile, turn: Callable[[], AbstractContextManager[None]] | None = None) -> int:
+    """Write ``m`` to ``path`` atomically (a crash leaves any previous file intact); returns its size (bytes).
+
+    ``turn()``: a context in which each part of the work runs (the serialising, then each MiB
+    written), so that a background writer can take turns with tracking for the CPU.
+    """
+    part = turn or contextlib.nullcontext
     payload = {
         "format": FORMAT,
         "version": VERSION,
@@ -108,9 +119,17 @@ def save_map(path: str | Path, m: MapFile) -> int:
         "frames_processed": m.frames_processed,
     }
     buffer = io.BytesIO()  # torch.save turns a failing file write (disk full) into a RuntimeError: write it ourselves
-    torch.save(payload, buffer)
-    atomic_write(path, lambda f: f.write(buffer.getbuffer()))
-    return buffer.getbuffer().nbytes
+    with part():
+        torch.save(payload, buffer)
+    data = buffer.getbuffer()
+
+    def write(f: BinaryIO) -> None:
+        for start in range(0, data.nbytes, _CHUNK):
+            with part():
+                f.write(data[start : start + _CHUNK])
+
+    atomic_write(path, write)
+    return data.nbytes
 
 
 def load_map(path: str | Path, device: torch.device | str = "cpu") -> MapFile:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import threading
 
 import numpy as np
@@ -140,3 +141,41 @@ def test_the_pipeline_snapshot_is_the_map_as_mapped_and_resumes_in_a_new_pipelin
         assert again.stats.tracked == 1 and again.stats.mapped == 1
     finally:
         again.shutdown()
+
+
+def test_a_background_write_runs_in_parts_and_a_save_on_request_in_one(tmp_path):
+    parts = []
+
+    @contextlib.contextmanager
+    def turn():
+        parts.append(1)
+        yield
+
+    maps = Maps()
+    maps.n = 30000  # a few MiB: several parts
+    saver = MapSaver(tmp_path / "m.sgsmap", maps, turn=turn)
+    assert saver.save().saved and not parts
+    assert saver.save(background=True).saved
+    size = (tmp_path / "m.sgsmap").stat().st_size
+    assert len(parts) == 1 + -(-size // 2**20)  # the serialising, then each MiB
+
+
+def test_a_background_turn_waits_for_the_frame_being_tracked_and_holds_the_next_one(tmp_path):
+    config = load_config("synthetic", overrides=list(FAST_SLAM))
+    pipeline = SlamPipeline(Slam(config), lockstep=False)
+    try:
+        pipeline.submit_frame(room_frame(0))
+        assert pipeline.wait_idle(120)
+        with pipeline.background_turn():
+            pipeline.submit_frame(room_frame(1))
+            assert not pipeline.wait_idle(0.5)  # the frame waits for the turn to end
+            assert pipeline.stats.tracked == 1
+        assert pipeline.wait_idle(120) and pipeline.stats.tracked == 2
+    finally:
+        pipeline.shutdown()
+    lockstep = SlamPipeline(Slam(config), lockstep=True)
+    try:
+        with lockstep.background_turn():  # nothing to take turns with: the body just runs
+            assert not lockstep._busy["background"]
+    finally:
+        lockstep.shutdown()
