@@ -184,8 +184,8 @@ def resume(args: argparse.Namespace, frames: list[Frame], config: SlamConfig) ->
             states.append(outcome.state)
     found = states.index("relocalized") if "relocalized" in states else None
     est = {**first, **second}
-    stamps = sorted(est)
-    part = sorted(second)
+    stamps = sorted(s for s in est if gt.get(s) is not None)  # frames with ground truth
+    part = [s for s in stamps if s in second]
     resumed = rmse_of(est, gt, stamps, part)
     reference = rmse_of(whole, gt, stamps, part)
     overall = rmse_of(est, gt, stamps, stamps)
