@@ -12,7 +12,7 @@ parameters describe) and ``~/undo_edit`` (Trigger: revert the last edit and unlo
 Standalone (``pose_source:=topic``) it subscribes the camera topics and ``tracking_node/pose`` and
 maps frames whose stamps match a pose exactly.
 
-The map outlives the process: autosaves every ``autosave_period_s`` (written beside tracking), a
+The map outlives the process: autosaves every ``autosave_period_s`` (written in turns with tracking), a
 save when the process is stopped (``save_on_shutdown``, from :meth:`MappingNode.finish`), and a map
 loaded at start (``load_map_on_start``) in which the camera is relocalized before mapping goes on.
 A loaded map (at start or by ``~/load_map``) is relocalized in the same way.
@@ -275,7 +275,8 @@ class MappingNode(Node):
     def _load_map(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         try:
             saved = self.load(self.saver.path)
-            response.success, response.message = True, _loaded(saved, self.saver.path)
+            relocalizing = self.pipeline.stats.tracking_state == "lost"
+            response.success, response.message = True, _loaded(saved, self.saver.path, relocalizing)
         except (OSError, SgsSlamError, TimeoutError) as err:
             response.success, response.message = False, f"cannot load {self.saver.path}: {err}"
         return response
@@ -291,7 +292,7 @@ class MappingNode(Node):
         except (SgsSlamError, TimeoutError) as err:
             self.close()
             raise SgsSlamError(f"{err} (move it away, or start with load_map_on_start:=false)") from err
-        self.get_logger().info(_loaded(saved, path))
+        self.get_logger().info(_loaded(saved, path, self.pipeline.stats.tracking_state == "lost"))
 
     def load(self, path: FilePath) -> MapFile:
         """Load the map at ``path`` and go on in it: the next frames are relocalized in it before mapping."""
@@ -421,8 +422,7 @@ class MappingNode(Node):
             log.info(f"map unchanged since it was last saved or loaded: {self.saver.path} left as it is")
             return
         outcome = self.saver.save()
-        if outcome.saved:
-            log.info(f"at shutdown: {outcome.message}")
+        (log.info if outcome.saved else log.error)(f"at shutdown: {outcome.message}")
 
     def close(self) -> None:
         """Stop autosaving and the workers this node owns."""
@@ -431,10 +431,15 @@ class MappingNode(Node):
             self.pipeline.shutdown()
 
 
-def _loaded(saved: MapFile, path: FilePath) -> str:
+def _loaded(saved: MapFile, path: FilePath, relocalizing: bool) -> str:
+    then = (
+        "the camera is relocalized in it before mapping goes on"
+        if relocalizing
+        else "tracking goes on from its last pose (no relocalization: features off or no keyframe images)"
+    )
     return (
         f"loaded {len(saved.gaussians)} Gaussians, {len(saved.keyframes)} keyframes and {len(saved.trajectory)} "
-        f"poses from {path}; the camera is relocalized in it before mapping goes on"
+        f"poses from {path}; {then}"
     )
 
 
