@@ -518,7 +518,8 @@ class KeyframeSettings:
             off = keep every keyframe with any overlap, as the released code).
         geometric_threshold: eta (0.05 in the paper).
         semantic_filter: drop candidates whose label mIoU with the current frame exceeds
-            ``semantic_threshold`` (T_sem, 0.7): near-identical views add little (paper; not in the code).
+            ``semantic_threshold``: near-identical views add little (paper; not in the code).
+        semantic_threshold: that mIoU (the paper's T_sem, 0.7).
         uncertainty_weighting: weight each window frame's mapping loss by U(t) = exp(-tau (t - t0)),
             t0 the oldest frame of the window (paper; not in the code).
         uncertainty_tau: tau per frame.

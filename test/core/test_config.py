@@ -1,4 +1,5 @@
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Literal
 
 import pytest
@@ -140,3 +141,12 @@ def test_live_runs_spend_their_few_mapping_steps_on_depth():
     for bad in ("live.mapping_weight_color=-0.1", "live.densify_depth_error_factor=0"):
         with pytest.raises(ConfigError, match=bad.split("=")[0].replace(".", r"\.")):
             load_config("tum", overrides=[bad])
+
+
+def test_the_configuration_reference_is_generated_from_the_schema_and_names_every_key():
+    from sgs_slam_core.config.reference import config_keys, config_reference
+
+    undocumented = [key for key, _, doc in config_keys() if not doc.strip()]
+    assert not undocumented, f"keys without a description in their section's Attributes: {undocumented}"
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "config.md").read_text()
+    assert doc == config_reference(), "stale: run python -m sgs_slam_core.config.reference > docs/config.md"
