@@ -9,8 +9,10 @@ frames that never arrived (gaps in each stream's stamps, :class:`StreamGaps`).
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,6 +28,7 @@ from sgs_slam_ros.inputs import InputWatch
 from sgs_slam_ros.params import NodeParams
 from sgs_slam_ros.qos import input_qos
 from sgs_slam_ros.stream_gaps import GapReport, StreamGaps
+from sgs_slam_ros.transport import PROFILE_ENV, socket_buffer_advice
 
 __all__ = ["CameraInputs"]
 
@@ -82,6 +85,10 @@ class CameraInputs:
         self.gaps = {name: StreamGaps() for name in [*names, "camera_info"]}
         self._loss_logged_at: float | None = None
         self._busy_logged = False
+        profile = os.environ.get(PROFILE_ENV)
+        self.socket_advice = socket_buffer_advice(Path(profile) if profile else None)
+        if self.socket_advice is not None:  # once: a host setting, not a stream's state
+            log(self.socket_advice)
 
     def _image(self, index: int, name: str, msg: Any) -> None:
         if index == 0:
@@ -192,6 +199,11 @@ class CameraInputs:
             "processing_size": text(a.processing_size),
             "downscale": f"{a.downscale:g}",
         }
+
+    def transport(self) -> dict[str, str]:
+        """Whether the host's socket buffers hold what the DDS profile asks for (frames from other computers)."""
+        short = self.socket_advice is not None
+        return {"socket_buffers": "too small for the DDS profile: see the log for the sysctl" if short else "ok"}
 
     def silent_names(self, silent: list[str]) -> str:
         """The topics of ``silent`` for /diagnostics ("none" when empty)."""

@@ -401,6 +401,7 @@ class MappingNode(Node):
             silent, warning = self.camera.silence(self.params["stale_input_s"], "nothing mapped")
             values.update(self.camera.counts(st.dropped_frames))
             values.update(self.camera.sizes())
+            values.update(self.camera.transport())
             values["silent_inputs"] = self.camera.silent_names(silent)
             if warning is not None:
                 level, message = warning

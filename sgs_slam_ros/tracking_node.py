@@ -290,6 +290,7 @@ class TrackingNode(Node):
             "latency_ms": f"{1e3 * latency[len(latency) // 2]:.1f}" if latency else "n/a",
             **self.camera.counts(st.dropped_frames),
             **self.camera.sizes(),
+            **self.camera.transport(),
             "frames_tracked": str(st.tracked),
             "tracking_failures": str(st.tracking_failures),
             "tracking_state": st.tracking_state,

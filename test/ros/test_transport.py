@@ -14,7 +14,14 @@ from rclpy.node import Node
 from bags import convert
 from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.datasets.base import resize_frame
-from sgs_slam_ros.transport import PROFILE_ENV, apply_transport, profile_path
+from sgs_slam_ros import transport
+from sgs_slam_ros.transport import (
+    PROFILE_ENV,
+    apply_transport,
+    profile_path,
+    profile_socket_buffers,
+    socket_buffer_advice,
+)
 
 from .helpers import FAST, Spinner, diagnostics_of, new_context, wait_for
 
@@ -131,3 +138,48 @@ def test_bag_player_to_slam_node_every_frame_arrives_or_is_counted(tiny_scene, t
         except subprocess.TimeoutExpired:
             node.kill()
             node.communicate()
+
+
+def fake_host(tmp_path, rmem: int, wmem: int):
+    proc = tmp_path / "net_core"
+    proc.mkdir(exist_ok=True)
+    (proc / "rmem_max").write_text(f"{rmem}\n")
+    (proc / "wmem_max").write_text(f"{wmem}\n")
+    return proc
+
+
+def test_the_shipped_profile_asks_for_socket_buffers_a_frame_fits_in_and_a_short_host_gets_the_sysctl(tmp_path):
+    shipped = profile_path()
+    assert profile_socket_buffers(shipped) == {"receiveBufferSize": 4194304, "sendBufferSize": 4194304}
+    advice = socket_buffer_advice(shipped, fake_host(tmp_path, 212992, 212992))  # a stock Linux host
+    assert advice is not None and "\n" not in advice
+    assert (
+        "rmem_max 212992" in advice and "sudo sysctl -w net.core.rmem_max=4194304 net.core.wmem_max=4194304" in advice
+    )
+    assert socket_buffer_advice(shipped, fake_host(tmp_path, 8388608, 4194304)) is None
+    assert socket_buffer_advice(None, fake_host(tmp_path, 1, 1)) is None  # no profile: DDS's own defaults
+    plain = tmp_path / "plain.xml"
+    plain.write_text("<profiles><participant profile_name='p'/></profiles>")
+    assert socket_buffer_advice(plain, fake_host(tmp_path, 1, 1)) is None  # no buffer sizes asked for
+    assert socket_buffer_advice(shipped, tmp_path / "absent") is None  # not Linux: nothing to compare
+
+
+@pytest.mark.ros
+def test_a_host_short_of_socket_buffers_is_told_once_and_diagnostics_say_so(tmp_path, monkeypatch, capfd):
+    from .helpers import node_params, watched_slam
+
+    monkeypatch.setenv(PROFILE_ENV, str(profile_path()))
+    monkeypatch.setattr(transport, "PROC_NET_CORE", fake_host(tmp_path, 212992, 212992))
+    slam = watched_slam(node_params())
+    try:
+
+        def reported() -> bool:
+            found = diagnostics_of(slam.diagnostics, "tracking_node")
+            return bool(found) and "socket_buffers" in found[-1][2]
+
+        assert wait_for(reported, 10.0)
+        assert diagnostics_of(slam.diagnostics, "tracking_node")[-1][2]["socket_buffers"].startswith("too small")
+    finally:
+        slam.shut_down()
+    told = [line for line in capfd.readouterr().err.splitlines() if "sysctl" in line]  # logged while the node starts
+    assert len(told) == 1 and "[tracking_node]" in told[0] and "net.core.rmem_max=4194304" in told[0]
