@@ -12,11 +12,11 @@ import dataclasses
 import fnmatch
 import inspect
 import re
-from importlib import resources
 from typing import Any
 
 import yaml
 
+from sgs_slam_core.config.loader import list_presets, preset_data
 from sgs_slam_core.config.schema import SlamConfig
 
 __all__ = ["attribute_docs", "config_keys", "config_reference"]
@@ -86,14 +86,8 @@ def _text(value: Any) -> str:
 
 
 def _presets() -> list[tuple[str, dict[str, Any]]]:
-    """Each preset's keys, flattened to dotted names."""
-    folder = resources.files("sgs_slam_core.config") / "presets"
-    found = []
-    for item in sorted(folder.iterdir(), key=lambda p: p.name):
-        if item.name.endswith(".yaml"):
-            data = yaml.safe_load(item.read_text()) or {}
-            found.append((item.name.removesuffix(".yaml"), _flatten(data)))
-    return found
+    """Each preset's keys (its ``extends:`` chain resolved), flattened to dotted names."""
+    return [(name, _flatten(preset_data(name))) for name in list_presets()]
 
 
 def _flatten(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -121,7 +115,7 @@ def config_reference() -> str:
         "|---|---|---|",
     ]
     out += [f"| `{key}` | {_text(default)} | {' '.join(doc.split())} |" for key, default, doc in keys]
-    out += ["", "## Presets", "", "What each preset (`sgs_slam_core/config/presets/*.yaml`) changes.", ""]
+    out += ["", "## Presets", "", "What each preset (`config/presets/*.yaml`, `extends:` resolved) sets.", ""]
     for name, values in _presets():
         out += [f"### `{name}`", "", "| key | value |", "|---|---|"]
         out += [f"| `{key}` | {_text(value)} |" for key, value in values.items()]

@@ -1,0 +1,24 @@
+"""bag_player and slam_node on two hosts (network namespaces, each with its own /dev/shm): frames cross as UDP."""
+
+from __future__ import annotations
+
+import pytest
+
+from bags import convert
+from bench.two_hosts import REMAPS, TwoHosts, play_across, unavailable
+from sgs_slam_core.datasets import open_dataset
+
+pytestmark = pytest.mark.ros
+
+
+def test_every_frame_crosses_to_the_other_host_with_the_shipped_settings(tiny_scene, tmp_path):
+    why = unavailable()
+    if why is not None:
+        pytest.skip(f"two hosts on one machine: {why}")
+    bag = tmp_path / "bag"
+    convert(open_dataset(tiny_scene), bag, compress=False)
+    with TwoHosts() as hosts:
+        counts = play_across(hosts, bag, ["preset:=synthetic", "use_semantics:=false"], REMAPS, timeout_s=180.0)
+    assert counts["frames_sent"] == 12
+    assert counts["frames_in"] == 12 and counts["frames_lost"] == 0, counts  # none lost between the hosts
+    assert counts["frames_tracked"] + counts["frames_dropped"] + counts["frames_rejected"] == 12, counts
