@@ -21,7 +21,7 @@ TF2_SRC := vendor/tf2_msgs/CMakeLists.txt vendor/tf2_msgs/package.xml vendor/tf2
 
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: setup test lint demo bench bench-render bench-slam bench-bags clean
+.PHONY: setup test test-fast lint demo bench bench-render bench-slam bench-bags clean
 
 setup: $(STAMP) $(TF2_STAMP)
 
@@ -51,6 +51,10 @@ lint: setup
 
 test: lint
 	$(PY) -m pytest
+
+# the edit-run loop: everything but the tests that start rclpy nodes (no ROS processes, no colcon): under 2 min
+test-fast: setup
+	$(PY) -m pytest -q -m "not ros"
 
 demo: setup
 	$(VENV)/bin/sgs-slam demo
