@@ -36,11 +36,16 @@ def unavailable() -> str | None:
     for tool in ("ip", "unshare", "mount"):
         if shutil.which(tool) is None:
             return f"needs the {tool} command"
-    probe = f"sgsprobe{os.getpid()}"
-    made = subprocess.run(["ip", "netns", "add", probe], capture_output=True, text=True, check=False)
-    if made.returncode != 0:
-        return f"cannot make a network namespace: {made.stderr.strip()}"
-    subprocess.run(["ip", "netns", "del", probe], capture_output=True, check=False)
+    try:  # a container may allow namespaces but not veth pairs or mounts: try the whole set-up once
+        with TwoHosts() as hosts:
+            probe = hosts.popen("a", ["true"], dict(os.environ), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+            _, err = probe.communicate(timeout=30)
+            if probe.returncode != 0:
+                return f"cannot give a host its own /dev/shm: {err.decode(errors='replace').strip()}"
+    except subprocess.CalledProcessError as err:
+        return f"cannot make the hosts ({' '.join(err.cmd)}): {(err.stderr or '').strip()}"
+    except (OSError, subprocess.TimeoutExpired) as err:
+        return f"cannot make the hosts: {err}"
     return None
 
 
@@ -57,6 +62,14 @@ class TwoHosts:
         subprocess.run(["ip", *args], check=True, capture_output=True, text=True)
 
     def __enter__(self) -> TwoHosts:
+        try:
+            self._make()
+        except BaseException:
+            self.__exit__()  # what was made goes again
+            raise
+        return self
+
+    def _make(self) -> None:
         a, b = self.names["a"], self.names["b"]
         self._ip("netns", "add", a)
         self._ip("netns", "add", b)
@@ -67,7 +80,6 @@ class TwoHosts:
             self._ip("-n", name, "link", "set", "lo", "up")
             self._ip("-n", name, "link", "set", f"v{name}", "up")
             self._ip("-n", name, "route", "add", "224.0.0.0/4", "dev", f"v{name}")  # DDS discovery: multicast
-        return self
 
     def popen(self, host: str, argv: list[str], env: dict[str, str], **kwargs: object) -> subprocess.Popen:
         """Start ``argv`` on ``host`` with a private /dev/shm."""
