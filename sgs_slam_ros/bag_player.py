@@ -45,6 +45,7 @@ from sgs_slam_ros.transport import TRANSPORTS, apply_transport
 __all__ = ["RESET_SERVICES", "BagPlayer", "PlayStats", "main"]
 
 RESET_SERVICES = ("/tracking_node/reset", "/mapping_node/reset")
+_SETTLE_S = 0.5  # after the subscribers appear: time for their side of the match (see wait_for_subscribers)
 
 
 @dataclass
@@ -155,6 +156,8 @@ class BagPlayer(Node):
         """Block until the colour, depth and camera_info topics have subscribers (nothing is published into the void).
 
         DDS discovery between processes takes up to a second or two: a short bag played at once is lost.
+        Once this side sees the subscribers it waits ``_SETTLE_S`` more: the subscriber's side of the
+        match can lag (across hosts, measured: the first two frames of a short bag dropped).
         """
         end = time.monotonic() + timeout_s
         wanted = (self.topics.color, self.topics.depth, self.topics.camera_info)
@@ -163,6 +166,7 @@ class BagPlayer(Node):
             if time.monotonic() > end or self._stop.is_set():
                 return False
             time.sleep(0.05)
+        self._stop.wait(_SETTLE_S)  # ends early when the player is stopped
         return True
 
     def reset_slam(self, services: Sequence[str] = RESET_SERVICES, timeout_s: float = 30.0) -> list[str]:
