@@ -178,7 +178,7 @@ MAPPING = (
     ParamSpec(
         "autosave_period_s",
         0.0,
-        "seconds between saves of the map to map_path while it changes, written beside tracking (0 = off)",
+        "seconds between saves of the map to map_path while it changes, written in turns with tracking (0 = off)",
         bounds=(0.0, 86400.0),
         read_only=True,
     ),
