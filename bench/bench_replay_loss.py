@@ -104,10 +104,10 @@ def replay(
     )
     time.sleep(3.0)  # the last frames' callbacks
     node.send_signal(signal.SIGINT)
-    return _final_counts(node.communicate(timeout=300)[0], player.stderr)
+    return final_counts(node.communicate(timeout=300)[0], player.stderr)
 
 
-def _final_counts(node_log: str, player_log: str) -> dict[str, float]:
+def final_counts(node_log: str, player_log: str) -> dict[str, float]:
     """The node's last log line's counts (and mapping steps a frame), and the frames the player sent."""
     final = [line for line in node_log.splitlines() if "final counts:" in line]
     sent = re.search(r"done: (\d+) frames", player_log)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import os
 import random
-import re
 import shutil
 import signal
 import subprocess
@@ -23,6 +22,8 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.bench_replay_loss import final_counts
 
 __all__ = ["TwoHosts", "unavailable"]
 
@@ -119,8 +120,8 @@ def play_across(
     remaps: list[str],
     timeout_s: float = 300.0,
     profile: Path | None = None,
-) -> dict[str, int]:
-    """``bag_player`` on host a into ``slam_node`` on host b; the node's final counts and the frames sent."""
+) -> dict[str, float]:
+    """``bag_player`` on host a into ``slam_node`` on host b; the node's final counts and the frames sent (``sent``)."""
     env = host_env(profile)
     py = sys.executable
     args = [a for p in node_params for a in ("-p", p)] + [a for r in remaps for a in ("-r", r)]
@@ -144,18 +145,7 @@ def play_across(
     time.sleep(3.0)  # the last frames' callbacks
     node.send_signal(signal.SIGINT)  # to `ip netns exec`, which passes it on (exec all the way down)
     node_log = node.communicate(timeout=120)[0]
-    return counts_of(node_log, player_log)
-
-
-def counts_of(node_log: str, player_log: str) -> dict[str, int]:
-    """The node's ``final counts`` line and the player's ``done: N frames``."""
-    final = [line for line in node_log.splitlines() if "final counts:" in line]
-    sent = re.search(r"done: (\d+) frames", player_log)
-    if not final or sent is None:
-        raise RuntimeError(f"no counts:\nplayer: {player_log[-800:]}\nnode: {node_log[-2000:]}")
-    counts = {k: int(v) for k, v in re.findall(r"(\w+(?:\[[^\]]+\])?) (\d+)", final[-1].split("final counts:")[1])}
-    counts["frames_sent"] = int(sent.group(1))
-    return counts
+    return final_counts(node_log, player_log)
 
 
 def main() -> int:
@@ -187,9 +177,9 @@ def main() -> int:
         for r in range(args.repeats):
             with TwoHosts() as hosts:
                 c = play_across(hosts, bag, params, REMAPS, profile=args.profile)
-            lost = c["frames_sent"] - c["frames_in"]
-            row = [r + 1, c["frames_sent"], c["frames_in"], c.get("frames_lost", 0), lost, c["frames_tracked"]]
-            rows.append([*row, f"{100 * lost / max(c['frames_sent'], 1):.1f} %"])
+            lost = c["sent"] - c["frames_in"]
+            row = [r + 1, c["sent"], c["frames_in"], c.get("frames_lost", 0), lost, c["frames_tracked"]]
+            rows.append([*row, f"{100 * lost / max(c['sent'], 1):.1f} %"])
             print(rows[-1], flush=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)

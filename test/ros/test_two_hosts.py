@@ -19,6 +19,6 @@ def test_every_frame_crosses_to_the_other_host_with_the_shipped_settings(tiny_sc
     convert(open_dataset(tiny_scene), bag, compress=False)
     with TwoHosts() as hosts:
         counts = play_across(hosts, bag, ["preset:=synthetic", "use_semantics:=false"], REMAPS, timeout_s=180.0)
-    assert counts["frames_sent"] == 12
+    assert counts["sent"] == 12
     assert counts["frames_in"] == 12 and counts["frames_lost"] == 0, counts  # none lost between the hosts
     assert counts["frames_tracked"] + counts["frames_dropped"] + counts["frames_rejected"] == 12, counts
