@@ -27,7 +27,6 @@ __all__ = [
     "load_layers",
     "load_yaml",
     "merge",
-    "move_keys",
     "parse_override",
     "preset_data",
 ]
@@ -101,49 +100,10 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:  # noqa: PLR0911, PLR0912 -
     raise ConfigError(f"{where}: unsupported config type {_type_name(tp)}")
 
 
-def move_keys(data: Mapping[str, Any], moves: Mapping[str, str]) -> dict[str, Any]:
-    """``data`` with each dotted key of ``moves`` that it holds put at its new dotted place."""
-    out = _copy_mappings(data)
-    for old, new in moves.items():
-        *old_path, old_key = old.split(".")
-        *new_path, new_key = new.split(".")
-        source = _walk(out, old_path, create=False)
-        if source is None or old_key not in source:
-            continue
-        target = _walk(out, new_path, create=True)
-        if target is None:
-            continue  # a value where a section belongs: build() reports it
-        if new_key in target:
-            raise ConfigError(f"{old} and {new} are both set; {old} is the old name of {new}")
-        target[new_key] = source.pop(old_key)
-    return out
-
-
-def _copy_mappings(data: Mapping[str, Any]) -> dict[str, Any]:
-    return {k: _copy_mappings(v) if isinstance(v, Mapping) else v for k, v in data.items()}
-
-
-def _walk(data: dict[str, Any], path: list[str], create: bool) -> dict[str, Any] | None:
-    """The mapping at ``path`` (made on the way when ``create``); None where there is none."""
-    for key in path:
-        if key not in data and create:
-            data[key] = {}
-        data = data.get(key)  # type: ignore[assignment]
-        if not isinstance(data, dict):
-            return None
-    return data
-
-
 def build(cls: type[T], data: Mapping[str, Any], where: str = "") -> T:
-    """Instantiate dataclass ``cls`` from a mapping; missing keys keep their defaults.
-
-    Keys a class lists in ``MOVED_KEYS`` (old dotted name -> new) are read at their new place.
-    """
+    """Instantiate dataclass ``cls`` from a mapping; missing keys keep their defaults."""
     if not dataclasses.is_dataclass(cls):
         raise TypeError(f"{cls} is not a dataclass")
-    moves = getattr(cls, "MOVED_KEYS", None)
-    if moves:
-        data = move_keys(data, moves)
     hints = get_type_hints(cls)
     known = {f.name for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(data) - known)

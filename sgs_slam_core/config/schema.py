@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import ClassVar, Literal
+from typing import Literal
 
 from sgs_slam_core.config.sections import (
     DensifySettings,
@@ -23,10 +23,6 @@ from sgs_slam_core.semantics import SemanticSettings
 __all__ = ["DeviceName", "SlamConfig"]
 
 DeviceName = Literal["auto", "cpu", "cuda"]
-# tracking keys of earlier versions: now in the motion section, or in the Adam tracker's own
-_MOTION_KEYS = ("constant_velocity", "icp_iterations", "icp_max_distance_m", "icp_min_inliers", "icp_min_gap")
-_ADAM_KEYS = ("iterations", "lr_rotation", "lr_translation", "early_stop", "stop_rel_improvement", "stop_patience",
-              "min_iterations", "stop_check_every")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -53,12 +49,6 @@ class SlamConfig:
     device: DeviceName = "auto"
     seed: int = 0
     eval_every: int = 5
-
-    # keys of earlier versions and where they live now (config files and saved maps keep working)
-    MOVED_KEYS: ClassVar[dict[str, str]] = {
-        **{f"tracking.{key}": f"motion.{key}" for key in _MOTION_KEYS},
-        **{f"tracking.{key}": f"tracking.adam.{key}" for key in _ADAM_KEYS},
-    }
 
     def for_live(self) -> SlamConfig:
         """This config as live runs use it: the ``live`` section's replacements applied.
