@@ -1,6 +1,7 @@
 """Build typed (dataclass) configs from plain data, YAML files, presets and ``key=value`` overrides.
 
 Unknown keys, wrong types and out-of-range values raise :class:`ConfigError` naming the dotted key.
+A dataclass field with ``metadata={"internal": True}`` is no config key: it keeps its default here.
 Layers apply in order: dataclass defaults, preset (which may ``extends:`` another), YAML file,
 overrides.
 """
@@ -21,6 +22,7 @@ from sgs_slam_core.fileio import read_yaml, write_text
 
 __all__ = [
     "build",
+    "config_fields",
     "config_to_dict",
     "dump_yaml",
     "list_presets",
@@ -105,7 +107,7 @@ def build(cls: type[T], data: Mapping[str, Any], where: str = "") -> T:
     if not dataclasses.is_dataclass(cls):
         raise TypeError(f"{cls} is not a dataclass")
     hints = get_type_hints(cls)
-    known = {f.name for f in dataclasses.fields(cls) if f.init}
+    known = {f.name for f in config_fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:
         prefix = f"{where}." if where else ""
@@ -119,10 +121,15 @@ def build(cls: type[T], data: Mapping[str, Any], where: str = "") -> T:
         raise ConfigError(f"{where or cls.__name__}: {err}") from err
 
 
+def config_fields(cls: Any) -> list[dataclasses.Field[Any]]:
+    """The fields of dataclass ``cls`` (or instance) that are config keys: not internal ones."""
+    return [f for f in dataclasses.fields(cls) if f.init and not f.metadata.get("internal")]
+
+
 def config_to_dict(obj: Any) -> Any:
-    """Plain-data form of a (nested) dataclass config, tuples as lists (YAML friendly)."""
+    """Plain-data form of a (nested) dataclass config, tuples as lists (YAML friendly); config keys only."""
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: config_to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+        return {f.name: config_to_dict(getattr(obj, f.name)) for f in config_fields(obj)}
     if isinstance(obj, tuple | list):
         return [config_to_dict(v) for v in obj]
     return obj

@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from sgs_slam_core.config.loader import list_presets, preset_data
+from sgs_slam_core.config.loader import config_fields, list_presets, preset_data
 from sgs_slam_core.config.schema import SlamConfig
 
 __all__ = ["attribute_docs", "config_keys", "config_reference"]
@@ -60,7 +60,7 @@ def config_keys(obj: Any = None, prefix: str = "") -> list[tuple[str, Any, str]]
     obj = SlamConfig() if obj is None else obj
     docs = attribute_docs(type(obj))
     rows: list[tuple[str, Any, str]] = []
-    for f in dataclasses.fields(obj):
+    for f in config_fields(obj):
         value = getattr(obj, f.name)
         key = f"{prefix}{f.name}"
         if dataclasses.is_dataclass(value) and f.name in docs and not _is_section(value):

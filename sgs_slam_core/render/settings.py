@@ -2,19 +2,25 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 from sgs_slam_core.errors import ConfigError
 
-__all__ = ["BackendName", "RenderSettings"]
+__all__ = ["INTERNAL", "BackendName", "RenderSettings"]
 
 BackendName = Literal["auto", "torch", "cpu", "gsplat"]
+# A settings field marked so (``field(metadata=INTERNAL)``) is no config key: code and tests set it
+# where they build the settings object, the config keeps its default.
+INTERNAL = {"internal": True}
 
 
 @dataclass(frozen=True)
 class RenderSettings:
-    """Constants of the splatting model, shared by every backend.
+    """The ``render`` config section (``backend``) and the constants of the splatting model.
+
+    The model's constants are shared by every backend and are no config keys (the renderer's tests
+    and benchmarks vary them where they build the settings).
 
     Attributes:
         backend: the kernels every render, loss and Gauss-Newton step runs on
@@ -37,15 +43,15 @@ class RenderSettings:
     """
 
     backend: BackendName = "auto"
-    tile_size: int = 8
-    cpu_tile_size: int = 0
-    near_plane: float = 0.01
-    eps2d: float = 0.3
-    alpha_max: float = 0.99
-    alpha_min: float = 1.0 / 255.0
-    extent_sigma: float = 3.0
-    min_transmittance: float = 1e-4
-    chunk_elements: int = 1 << 18
+    tile_size: int = field(default=8, metadata=INTERNAL)
+    cpu_tile_size: int = field(default=0, metadata=INTERNAL)
+    near_plane: float = field(default=0.01, metadata=INTERNAL)
+    eps2d: float = field(default=0.3, metadata=INTERNAL)
+    alpha_max: float = field(default=0.99, metadata=INTERNAL)
+    alpha_min: float = field(default=1.0 / 255.0, metadata=INTERNAL)
+    extent_sigma: float = field(default=3.0, metadata=INTERNAL)
+    min_transmittance: float = field(default=1e-4, metadata=INTERNAL)
+    chunk_elements: int = field(default=1 << 18, metadata=INTERNAL)
 
     def cpu_tile(self, max_tile: int) -> int:
         """Tile side the compiled cpu backend uses, given the largest its build takes."""
@@ -55,18 +61,20 @@ class RenderSettings:
         if self.backend not in ("auto", "torch", "cpu", "gsplat"):
             raise ConfigError(f"render.backend must be auto, torch, cpu or gsplat, got {self.backend!r}")
         if not 1 <= self.tile_size <= 64:
-            raise ConfigError(f"render.tile_size must be in [1, 64], got {self.tile_size}")
+            raise ConfigError(f"RenderSettings.tile_size must be in [1, 64], got {self.tile_size}")
         if self.cpu_tile_size not in (0, 4, 8, 16, 32):
-            raise ConfigError(f"render.cpu_tile_size must be 0 (auto), 4, 8, 16 or 32, got {self.cpu_tile_size}")
+            raise ConfigError(
+                f"RenderSettings.cpu_tile_size must be 0 (auto), 4, 8, 16 or 32, got {self.cpu_tile_size}"
+            )
         if not self.near_plane > 0:
-            raise ConfigError(f"render.near_plane must be > 0, got {self.near_plane}")
+            raise ConfigError(f"RenderSettings.near_plane must be > 0, got {self.near_plane}")
         if self.eps2d < 0:
-            raise ConfigError(f"render.eps2d must be >= 0, got {self.eps2d}")
+            raise ConfigError(f"RenderSettings.eps2d must be >= 0, got {self.eps2d}")
         if not 0 < self.alpha_min < self.alpha_max < 1:
             raise ConfigError(f"need 0 < alpha_min < alpha_max < 1, got {self.alpha_min}, {self.alpha_max}")
         if not 0 < self.extent_sigma <= 10:
-            raise ConfigError(f"render.extent_sigma must be in (0, 10], got {self.extent_sigma}")
+            raise ConfigError(f"RenderSettings.extent_sigma must be in (0, 10], got {self.extent_sigma}")
         if not 0 <= self.min_transmittance < 0.5:
-            raise ConfigError(f"render.min_transmittance must be in [0, 0.5), got {self.min_transmittance}")
+            raise ConfigError(f"RenderSettings.min_transmittance must be in [0, 0.5), got {self.min_transmittance}")
         if self.chunk_elements < 1024:
-            raise ConfigError(f"render.chunk_elements must be >= 1024, got {self.chunk_elements}")
+            raise ConfigError(f"RenderSettings.chunk_elements must be >= 1024, got {self.chunk_elements}")

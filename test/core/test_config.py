@@ -7,6 +7,7 @@ import pytest
 from sgs_slam_core.config import SlamConfig, build, config_to_dict, dump_yaml, list_presets, load_config
 from sgs_slam_core.config.loader import load_yaml, parse_override
 from sgs_slam_core.errors import ConfigError
+from sgs_slam_core.render import RenderSettings
 
 
 @dataclass(frozen=True)
@@ -53,17 +54,21 @@ def test_presets_load_and_overrides_apply(tmp_path):
     for name in list_presets():
         assert isinstance(load_config(name), SlamConfig)
     path = tmp_path / "c.yaml"
-    path.write_text("render:\n  tile_size: 16\n")
-    cfg = load_config("scannet", path, ["render.eps2d=0.5", "seed=7"])
-    assert cfg.render.tile_size == 16 and cfg.render.eps2d == 0.5 and cfg.seed == 7
-    assert load_config(overrides=["render.eps2d=1e-3"]).render.eps2d == 0.001  # YAML 1.1 reads 1e-3 as text
+    path.write_text("render:\n  backend: torch\n")
+    cfg = load_config("scannet", path, ["mapping.lr_means=0.5", "seed=7"])
+    assert cfg.render.backend == "torch" and cfg.mapping.lr_means == 0.5 and cfg.seed == 7
+    assert load_config(overrides=["mapping.lr_means=1e-3"]).mapping.lr_means == 0.001  # YAML 1.1: 1e-3 is text
     dump_yaml(cfg, tmp_path / "out.yaml")
     assert load_config(path=tmp_path / "out.yaml") == cfg
 
 
 def test_range_errors_and_bad_overrides(tmp_path):
+    with pytest.raises(ConfigError, match="backend"):
+        load_config(overrides=["render.backend=opengl"])
+    with pytest.raises(ConfigError, match=r"unknown config key render\.tile_size \(known at this level: backend\)"):
+        load_config(overrides=["render.tile_size=16"])  # the renderer's constants are no config keys
     with pytest.raises(ConfigError, match="tile_size"):
-        load_config(overrides=["render.tile_size=0"])
+        RenderSettings(tile_size=0)  # code that builds the settings still has them checked
     with pytest.raises(ConfigError, match="unknown preset 'nope'"):
         load_config("nope")
     with pytest.raises(ConfigError, match="section\\.key=value"):
