@@ -152,25 +152,14 @@ class AdamTrackerSettings:
         iterations: budget of optimiser steps per frame.
         lr_rotation, lr_translation: Adam learning rates of the camera-frame rotation (rad) and
             translation (m) increment; the paper's quaternion rates map to twice their value here.
-        early_stop: stop before the budget once the best loss stops improving.
-        stop_rel_improvement: an iteration "improves" when it lowers the best loss by more than this
-            fraction.
-        stop_patience: iterations without improvement that end tracking.
-        min_iterations: never stop before this many steps. The patience test cannot stop before
-            step ``stop_patience + 1`` anyway, so below that this only bounds how soon live
-            tracking ends when a newer frame waits (the pipeline's ``newer_frame_waiting``).
-        stop_check_every: read the stop test back from the device every n steps (0 = auto: every
-            step on the CPU, where reading is free, every 5 on CUDA, so the loop does not wait on the GPU).
+        early_stop: stop before the budget once the best loss stops improving: 5 steps in a row
+            fail to lower it by more than 0.1 % (``slam.tracker``'s constants).
     """
 
     iterations: int = 40
     lr_rotation: float = 8e-4
     lr_translation: float = 2e-3
     early_stop: bool = True
-    stop_rel_improvement: float = 1e-3
-    stop_patience: int = 5
-    min_iterations: int = 2
-    stop_check_every: int = 0
 
     def __post_init__(self) -> None:
         _positive(
@@ -178,11 +167,7 @@ class AdamTrackerSettings:
             iterations=self.iterations,
             lr_rotation=self.lr_rotation,
             lr_translation=self.lr_translation,
-            stop_patience=self.stop_patience,
         )
-        _non_negative("tracking.adam", min_iterations=self.min_iterations, stop_check_every=self.stop_check_every)
-        if not 0 <= self.stop_rel_improvement < 1:
-            raise ConfigError(f"tracking.adam.stop_rel_improvement must be in [0, 1), got {self.stop_rel_improvement}")
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ both drive it. Callers only hand over frames; the work happens on two worker thr
   still waits for the tracker replaces it (counted in ``stats.dropped_frames``); mapping jobs
   likewise (``stats.dropped_jobs``). The map object is immutable and replaced whole, so the
   tracker always renders one consistent map version. A frame being tracked when a newer one
-  arrives ends its tracking after ``tracking.adam.min_iterations`` steps: the camera has moved on.
+  arrives ends its tracking after ``slam.tracker.MIN_ITERATIONS`` steps: the camera has moved on.
 - **Lockstep**: every frame is kept and frame t is tracked only after frame t-1 is mapped (or, with
   a separate mapping process, after ``ready_to_track`` says its map has arrived).
 

@@ -22,6 +22,16 @@ from sgs_slam_core.slam.pose import PoseParameters
 
 __all__ = ["TrackRendering", "TrackResult", "judge_pose", "track"]
 
+# The Adam tracker's early stop (``tracking.adam.early_stop``):
+STOP_REL_IMPROVEMENT = 1e-3  # a step "improves" when it lowers the best loss by more than this fraction
+STOP_PATIENCE = 5  # steps in a row without improvement that end tracking
+# Never stop before this many steps. The patience test cannot stop before step STOP_PATIENCE + 1 anyway,
+# so this only bounds how soon live tracking ends when a newer frame waits (``newer_frame_waiting``).
+MIN_ITERATIONS = 2
+# Read the stop test back from the device every n steps; 0 = every step on the CPU, where reading is
+# free, every 5 on CUDA, so the loop does not wait on the GPU.
+STOP_CHECK_EVERY = 0
+
 
 @dataclass(frozen=True)
 class TrackRendering:
@@ -59,10 +69,10 @@ def track(
     """Adam on a camera-frame se(3) increment with a fresh optimiser, keeping the best evaluated pose.
 
     Unlike the reference, the stored best pose is the one that produced the best loss (no
-    off-by-one), and tracking stops early once ``stop_patience`` iterations in a row fail to lower
-    the best loss by more than ``stop_rel_improvement``. The best pose and the stop counter live on
-    the device; the host reads them every ``stop_check_every`` steps only. Live,
-    ``newer_frame_waiting`` (asked at those reads) ends tracking after ``min_iterations`` once it
+    off-by-one), and tracking stops early once ``STOP_PATIENCE`` iterations in a row fail to lower
+    the best loss by more than ``STOP_REL_IMPROVEMENT``. The best pose and the stop counter live on
+    the device; the host reads them every ``STOP_CHECK_EVERY`` steps only. Live,
+    ``newer_frame_waiting`` (asked at those reads) ends tracking after ``MIN_ITERATIONS`` once it
     returns True: the camera has moved on, and the frame's time is spent.
     """
     t0 = time.perf_counter()
@@ -70,7 +80,7 @@ def track(
     device = fixed.device
     pose = PoseParameters(init_w2c, device)
     adam = FusedAdam({"phi": pose.phi, "rho": pose.rho}, {"phi": s.adam.lr_rotation, "rho": s.adam.lr_translation})
-    check_every = s.adam.stop_check_every or (5 if device.type == "cuda" else 1)
+    check_every = STOP_CHECK_EVERY or (5 if device.type == "cuda" else 1)
     best = _Best.start(device)
     converged, it = False, 0
     for it in range(1, s.adam.iterations + 1):
@@ -78,15 +88,15 @@ def track(
             out = kernels.render(fixed, frame.intrinsics, pose.w2c(), with_semantics=use_semantics)
         with stage("track.loss"):
             loss = kernels.tracking_loss(out, frame, s, use_semantics)
-            best.update(loss, pose.xi(), s.adam.stop_rel_improvement)
+            best.update(loss, pose.xi(), STOP_REL_IMPROVEMENT)
         if it % check_every == 0 or it == s.adam.iterations:
             pixels, stale = (int(v) for v in torch.stack([loss.pixels, best.stale]).tolist())  # the one host read
             if pixels == 0:
                 break
-            if s.adam.early_stop and it >= s.adam.min_iterations and stale >= s.adam.stop_patience:
+            if s.adam.early_stop and it >= MIN_ITERATIONS and stale >= STOP_PATIENCE:
                 converged = True
                 break
-            if it >= s.adam.min_iterations and newer_frame_waiting is not None and newer_frame_waiting():
+            if it >= MIN_ITERATIONS and newer_frame_waiting is not None and newer_frame_waiting():
                 break
         with stage("track.backward"):
             loss.total.backward()

@@ -16,6 +16,7 @@ from sgs_slam_core.geometry import se3_exp
 from sgs_slam_core.kernels import build_kernels, render
 from sgs_slam_core.render import RenderSettings
 from sgs_slam_core.render.output import RenderOutput
+from sgs_slam_core.slam import tracker as tracker_module
 from sgs_slam_core.slam.icp_init import IcpInit
 from sgs_slam_core.slam.system import Slam
 from sgs_slam_core.slam.tracker import track
@@ -78,14 +79,21 @@ def adam_settings(**adam: float) -> TrackingSettings:
     return TrackingSettings(sil_threshold=0.5, adam=AdamTrackerSettings(**steps))
 
 
-def test_reading_the_stop_test_less_often_changes_nothing_but_the_stop_step():
+def track_checking_every(check_every, settings, gm, frame, start, monkeypatch):
+    """``track`` reading its stop test back every ``check_every`` steps (``STOP_CHECK_EVERY``)."""
+    with monkeypatch.context() as patch:
+        patch.setattr(tracker_module, "STOP_CHECK_EVERY", check_every)
+        return track(gm, frame, start, settings, TORCH, True)
+
+
+def test_reading_the_stop_test_less_often_changes_nothing_but_the_stop_step(monkeypatch):
     gm, frame = target_frame()
     start = se3_exp(torch.tensor([0.02, -0.01, 0.01, 0.01, -0.015, 0.005], dtype=torch.float64)).numpy()
-    fixed = [track(gm, frame, start, adam_settings(early_stop=False, stop_check_every=c), TORCH, True) for c in (1, 7)]
+    fixed = [track_checking_every(c, adam_settings(early_stop=False), gm, frame, start, monkeypatch) for c in (1, 7)]
     assert fixed[0].iterations == fixed[1].iterations == 60
     assert np.array_equal(fixed[0].w2c, fixed[1].w2c) and fixed[0].loss == fixed[1].loss
     assert np.abs(fixed[0].w2c - np.eye(4)).max() < 0.2 * np.abs(start - np.eye(4)).max()  # it converged
-    every, sparse = (track(gm, frame, start, adam_settings(stop_check_every=c), TORCH, True) for c in (1, 7))
+    every, sparse = (track_checking_every(c, adam_settings(), gm, frame, start, monkeypatch) for c in (1, 7))
     assert every.converged and sparse.converged
     assert sparse.iterations % 7 == 0 and every.iterations <= sparse.iterations  # stops only where it reads
     assert sparse.loss <= every.loss  # more steps never lose the best pose
@@ -118,14 +126,15 @@ def test_the_icp_start_runs_after_dropped_frames_only_and_helps_there(tiny_scene
     assert errors[0] < errors[1] and steps[0] < steps[1]  # measured: 2.1 vs 3.1 cm, 14 vs 30 (the cap) steps
 
 
-def test_a_newer_frame_waiting_ends_tracking_after_its_minimum_steps():
+def test_a_newer_frame_waiting_ends_tracking_after_its_minimum_steps(monkeypatch):
     gm, frame = target_frame()
     start = se3_exp(torch.tensor([0.02, -0.01, 0.01, 0.01, -0.015, 0.005], dtype=torch.float64)).numpy()
-    s = adam_settings(min_iterations=3)
+    monkeypatch.setattr(tracker_module, "MIN_ITERATIONS", 3)
+    s = adam_settings()
     asked: list[int] = []
     cut = track(gm, frame, start, s, TORCH, True, newer_frame_waiting=lambda: asked.append(1) or True)
     assert cut.iterations == 3 and not cut.converged and len(asked) == 1  # asked from the minimum on only
     full = track(gm, frame, start, s, TORCH, True, newer_frame_waiting=lambda: False)
     assert full.iterations > 3 and full.loss < cut.loss
-    alone = track(gm, frame, start, adam_settings(min_iterations=3, iterations=3), TORCH, True)
+    alone = track(gm, frame, start, adam_settings(iterations=3), TORCH, True)
     assert np.array_equal(cut.w2c, alone.w2c)  # the best of the steps made, as a 3-step budget gives
