@@ -64,27 +64,17 @@ class GaussNewtonSettings:
     image gradients, coarse to fine, Huber-weighted, Levenberg-damped.
 
     Attributes:
-        iterations: Gauss-Newton steps per pyramid level, coarsest first (the last is the full image).
-        renders: times the map is rendered and the frame aligned to that rendering, each from the
-            last result; one more render judges the result (the Adam tracker's loss, for the guard).
+        iterations: Gauss-Newton steps per pyramid level, coarsest first (the last is the full image;
+            levels narrower than 40 px are left out, ``geometry.icp.IcpSettings.min_width``).
         max_distance_m: correspondences farther apart than this (m) are left out.
         huber_m: residuals beyond this (m, or its equivalent for the channels) are down-weighted.
-        damping: Levenberg damping relative to the mean diagonal of the normal matrix.
-        min_width: pyramid levels narrower than this (pixels) are left out.
         color_scale_m: a colour difference of 1 (the full range) weighs as this many metres of
-            point-to-plane residual; 0 = depth only.
-        color_channels: ``intensity`` (one channel, BT.601 luma) or ``rgb`` (three).
+            point-to-plane residual (of the frame's intensity, BT.601 luma); 0 = depth only.
         semantic_scale_m: the same for a semantic feature difference of 1; 0 = no semantic term.
-        photometric_levels: the finest this many pyramid levels carry the intensity and semantic
-            terms (0 = every level); coarser levels align depth alone, which converges from farther.
         keep_start: keep the starting pose where its tracking loss is lower than the solve's (the
             Adam tracker keeps its best evaluated pose, the start included), and the alignment
             skips its own check against the start. Off, the solve wins wherever the alignment's
             own cost is lower than at the start.
-        adam_steps: steps of the Adam tracker after the Gauss-Newton solve (its loss, keeping the
-            best evaluated pose, so never worse than the solve by that loss); 0 = none.
-        adam_lr_scale: those steps' learning rates as a fraction of ``tracking.adam.lr_*`` (the solve
-            starts them near the optimum, where the full rates overshoot).
         feature_weight: the frame's feature matches (the inliers of its feature pose against the
             last accepted frame) join the finest level's steps as reprojection terms, a pixel of
             error counting as the metres it spans at the point's depth and each match as this many
@@ -98,18 +88,11 @@ class GaussNewtonSettings:
     """
 
     iterations: tuple[int, ...] = (6, 4, 3)
-    renders: int = 1
     max_distance_m: float = 0.1
     huber_m: float = 0.01
-    damping: float = 1e-4
-    min_width: int = 40
     color_scale_m: float = 1.0
-    color_channels: Literal["intensity", "rgb"] = "intensity"
     semantic_scale_m: float = 0.0
-    photometric_levels: int = 1
     keep_start: bool = False
-    adam_steps: int = 0
-    adam_lr_scale: float = 0.25
     feature_weight: float = 10.0
     depth_noise: DepthNoise | None = field(default_factory=DepthNoise)
 
@@ -118,30 +101,18 @@ class GaussNewtonSettings:
             raise ConfigError(
                 f"tracking.gauss_newton.iterations must be 1 to 6 counts >= 0, got {list(self.iterations)}"
             )
-        _positive(
-            "tracking.gauss_newton",
-            renders=self.renders,
-            max_distance_m=self.max_distance_m,
-            huber_m=self.huber_m,
-            min_width=self.min_width,
-            adam_lr_scale=self.adam_lr_scale,
-        )
+        _positive("tracking.gauss_newton", max_distance_m=self.max_distance_m, huber_m=self.huber_m)
         _non_negative(
             "tracking.gauss_newton",
-            damping=self.damping,
             color_scale_m=self.color_scale_m,
             semantic_scale_m=self.semantic_scale_m,
-            photometric_levels=self.photometric_levels,
-            adam_steps=self.adam_steps,
             feature_weight=self.feature_weight,
         )
 
     @property
     def icp(self) -> IcpSettings:
-        """The alignment's settings."""
-        return IcpSettings(
-            self.iterations, self.max_distance_m, self.huber_m, self.damping, self.min_width, self.depth_noise
-        )
+        """The alignment's settings (damping and the narrowest level: ``IcpSettings``' defaults)."""
+        return IcpSettings(self.iterations, self.max_distance_m, self.huber_m, depth_noise=self.depth_noise)
 
 
 @dataclass(frozen=True)

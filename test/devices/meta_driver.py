@@ -91,7 +91,21 @@ def nodes(scene: Path, work: Path) -> Callable[[], None]:
 FOUR = ("--max-frames", "4")
 TORCH = ("--set", "render.backend=torch")
 GN = ("--set", "tracking.method=gauss_newton", "--set", "tracking.gauss_newton.semantic_scale_m=0.05")
-GN_TWO_ADAM_STEPS = ("--set", "tracking.gauss_newton.adam_steps=2")
+
+
+def with_adam_polish(step: Callable[[], None]) -> Callable[[], None]:
+    """``step`` with the Gauss-Newton tracker's two Adam steps after each solve (``ADAM_STEPS``)."""
+
+    def polished() -> None:
+        from sgs_slam_core.slam.trackers import gauss_newton
+
+        saved, gauss_newton.ADAM_STEPS = gauss_newton.ADAM_STEPS, 2
+        try:
+            step()
+        finally:
+            gauss_newton.ADAM_STEPS = saved
+
+    return polished
 
 
 def steps(work: Path) -> list[tuple[str, Callable[[], None]]]:
@@ -106,7 +120,7 @@ def steps(work: Path) -> list[tuple[str, Callable[[], None]]]:
         ("run --realtime", cli("run", str(scene), "--out", str(work / "run_rt"), "--realtime", "30", *FAST)),
         (
             "run (Gauss-Newton tracker)",
-            cli("run", str(scene), "--out", str(work / "run_gn"), *FOUR, *FAST, *GN, *GN_TWO_ADAM_STEPS),
+            with_adam_polish(cli("run", str(scene), "--out", str(work / "run_gn"), *FOUR, *FAST, *GN)),
         ),
         (
             "run (Gauss-Newton tracker, torch kernels)",

@@ -30,11 +30,22 @@ from sgs_slam_core.render import RenderSettings
 from sgs_slam_core.slam.densify import gaussians_from_pixels
 from sgs_slam_core.slam.system import Slam
 from sgs_slam_core.slam.trackers import AdamTracker, GaussNewtonTracker, build_tracker
+from sgs_slam_core.slam.trackers import gauss_newton as gauss_newton_module
 
 from ..conftest import FAST_SLAM
 
 SETTINGS = RenderSettings(backend="torch")
 TORCH = build_kernels(SETTINGS, "cpu")
+
+
+def gn_tracker(gn: GaussNewtonSettings, sil_threshold: float = 0.99) -> GaussNewtonTracker:
+    """The Gauss-Newton tracker on the reference kernels, its pyramid kept down to 8 px wide levels
+    (``IcpSettings.min_width``): the 64x48 test frames then have three.
+    """
+    s = TrackingSettings(method="gauss_newton", sil_threshold=sil_threshold, gauss_newton=gn)
+    tracker = GaussNewtonTracker(s, TORCH)
+    tracker.icp = replace(tracker.icp, min_width=8)
+    return tracker
 
 
 def target_frame(width: int = 64, height: int = 48) -> tuple[GaussianMap, FrameTensors]:
@@ -81,15 +92,11 @@ def test_channel_jacobians_match_autograd_on_a_linear_image():
     assert torch.allclose(rows, reference.float(), atol=1e-4)
 
 
-def test_the_tracker_recovers_a_perturbed_pose_against_the_rendered_map():
+def test_the_tracker_recovers_a_perturbed_pose_against_the_rendered_map(monkeypatch):
     gm, frame = target_frame(width=64, height=48)
     start = se3_exp(torch.tensor([0.03, -0.02, 0.02, 0.02, -0.03, 0.01], dtype=torch.float64)).numpy()
-    s = TrackingSettings(
-        method="gauss_newton",
-        sil_threshold=0.99,
-        gauss_newton=GaussNewtonSettings(iterations=(8,), renders=2, min_width=8),
-    )
-    result = build_tracker(s, TORCH).track(gm, frame, start, True)
+    monkeypatch.setattr(gauss_newton_module, "RENDERS", 2)
+    result = gn_tracker(GaussNewtonSettings(iterations=(8,))).track(gm, frame, start, True)
     before = np.linalg.norm(start[:3, 3])
     after = np.linalg.norm(result.w2c[:3, 3])
     assert after < 0.1 * before, (before, after)
@@ -97,29 +104,31 @@ def test_the_tracker_recovers_a_perturbed_pose_against_the_rendered_map():
     assert np.isfinite(result.loss) and result.valid_fraction > 0.3
 
 
-def test_every_term_alone_and_the_adam_polish_move_towards_the_truth():
+def test_every_term_alone_and_the_adam_polish_move_towards_the_truth(monkeypatch):
     gm, frame = target_frame(width=64, height=48)
     start = se3_exp(torch.tensor([0.02, 0.0, 0.01, 0.0, 0.02, 0.0], dtype=torch.float64)).numpy()
-    variants = {
-        "depth": GaussNewtonSettings(iterations=(6,), min_width=8, color_scale_m=0.0),
-        "colour and semantics": GaussNewtonSettings(iterations=(6,), min_width=8, semantic_scale_m=0.05),
-        "rgb": GaussNewtonSettings(iterations=(6,), min_width=8, color_channels="rgb"),
-        "adam polish": GaussNewtonSettings(iterations=(6,), min_width=8, adam_steps=3),
-        "colour on the finest level": GaussNewtonSettings(iterations=(4, 4), min_width=8, photometric_levels=1),
+    variants = {  # settings, and the tracker module's constants
+        "depth": (GaussNewtonSettings(iterations=(6,), color_scale_m=0.0), {}),
+        "colour and semantics": (GaussNewtonSettings(iterations=(6,), semantic_scale_m=0.05), {}),
+        "rgb": (GaussNewtonSettings(iterations=(6,)), {"COLOR_CHANNELS": "rgb"}),
+        "adam polish": (GaussNewtonSettings(iterations=(6,)), {"ADAM_STEPS": 3}),
+        "colour on the finest level": (GaussNewtonSettings(iterations=(4, 4)), {"PHOTOMETRIC_LEVELS": 1}),
     }
-    for name, gn in variants.items():
-        s = TrackingSettings(method="gauss_newton", sil_threshold=0.99, gauss_newton=gn)
-        result = GaussNewtonTracker(s, TORCH).track(gm, frame, start, True)
+    for name, (gn, constants) in variants.items():
+        with monkeypatch.context() as patch:
+            for constant, value in constants.items():
+                patch.setattr(gauss_newton_module, constant, value)
+            result = gn_tracker(gn).track(gm, frame, start, True)
         assert np.linalg.norm(result.w2c[:3, 3]) < 0.3 * np.linalg.norm(start[:3, 3]), name
 
 
-def test_coarse_levels_align_depth_alone_below_the_photometric_levels():
+def test_coarse_levels_align_depth_alone_below_the_photometric_levels(monkeypatch):
     gm, frame = target_frame(width=64, height=48)
     with torch.no_grad():
         out = render(gm, frame.intrinsics, torch.eye(4), SETTINGS)
     for keep, expected in ((0, [1, 1, 1]), (1, [0, 0, 1]), (2, [0, 1, 1]), (5, [1, 1, 1])):
-        gn = GaussNewtonSettings(iterations=(2, 2, 2), min_width=8, photometric_levels=keep)
-        tracker = GaussNewtonTracker(TrackingSettings(method="gauss_newton", gauss_newton=gn), TORCH)
+        monkeypatch.setattr(gauss_newton_module, "PHOTOMETRIC_LEVELS", keep)
+        tracker = gn_tracker(GaussNewtonSettings(iterations=(2, 2, 2)), sil_threshold=0.99)
         levels = tracker._reference(out, frame.intrinsics, 3, semantic=False)
         assert [level.num_channels for level in levels] == expected, keep
 
@@ -130,9 +139,8 @@ def test_with_keep_start_a_solve_that_explains_the_frame_worse_than_its_start_is
 
     gm, frame = target_frame(width=64, height=48)
     start = se3_exp(torch.tensor([0.005, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=torch.float64)).numpy()
-    gn = GaussNewtonSettings(min_width=8, keep_start=True)
-    s = TrackingSettings(method="gauss_newton", sil_threshold=0.99, gauss_newton=gn)
-    solved = GaussNewtonTracker(s, TORCH).track(gm, frame, start, False)
+    gn = GaussNewtonSettings(keep_start=True)
+    solved = gn_tracker(gn).track(gm, frame, start, False)
     assert np.linalg.norm(solved.w2c[:3, 3]) < 0.5 * np.linalg.norm(start[:3, 3])  # a good solve is kept
     assert solved.rendering is not None
 
@@ -143,34 +151,29 @@ def test_with_keep_start_a_solve_that_explains_the_frame_worse_than_its_start_is
 
     monkeypatch.setattr(gauss_newton, "align_device", astray)
     monkeypatch.setattr(gauss_newton, "refine_device", lambda *args, **kwargs: jump)  # keep_start: unchecked
-    kept = GaussNewtonTracker(s, TORCH).track(gm, frame, start, False)
+    kept = gn_tracker(gn).track(gm, frame, start, False)
     assert np.array_equal(kept.w2c, start) and np.isfinite(kept.loss) and kept.valid_fraction > 0.3
     assert kept.loss < solved.loss * 10 and kept.rendering is not None  # the start's own rendering
-    s = TrackingSettings(method="gauss_newton", sil_threshold=0.99, gauss_newton=replace(gn, keep_start=False))
-    astray_kept = GaussNewtonTracker(s, TORCH).track(gm, frame, start, False)
+    astray_kept = gn_tracker(replace(gn, keep_start=False)).track(gm, frame, start, False)
     assert astray_kept.w2c[0, 3] == pytest.approx(start[0, 3] - 0.2, abs=1e-6)  # off: the solve always wins
 
 
 def test_an_empty_map_keeps_the_prediction():
     gm, frame = target_frame(width=64, height=48)
     start = se3_exp(torch.tensor([0.0, 0.0, -10.0, 0.0, 0.0, 0.0], dtype=torch.float64)).numpy()  # map behind
-    s = TrackingSettings(method="gauss_newton", sil_threshold=0.99, gauss_newton=GaussNewtonSettings(min_width=8))
-    result = GaussNewtonTracker(s, TORCH).track(gm, frame, start, False)
+    result = gn_tracker(GaussNewtonSettings()).track(gm, frame, start, False)
     assert np.array_equal(result.w2c, start) and result.loss == float("inf") and result.valid_fraction == 0.0
 
 
 def test_the_method_is_a_config_value_with_checked_settings():
     assert isinstance(build_tracker(TrackingSettings(), TORCH), AdamTracker)
-    cfg = load_config("tum", overrides=["tracking.method=gauss_newton", "tracking.gauss_newton.renders=2"])
+    cfg = load_config("tum", overrides=["tracking.method=gauss_newton", "tracking.gauss_newton.huber_m=0.02"])
     assert isinstance(build_tracker(cfg.tracking, build_kernels(cfg.render, "cpu")), GaussNewtonTracker)
     for bad in (
         "tracking.method=lbfgs",
-        "tracking.gauss_newton.renders=0",
         "tracking.gauss_newton.iterations=[]",
         "tracking.gauss_newton.color_scale_m=-1",
-        "tracking.gauss_newton.color_channels=hsv",
-        "tracking.gauss_newton.adam_lr_scale=0",
-        "tracking.gauss_newton.photometric_levels=-1",
+        "tracking.gauss_newton.huber_m=0",
     ):
         with pytest.raises(ConfigError, match="tracking"):
             load_config("tum", overrides=[bad])
@@ -283,11 +286,9 @@ def test_without_steps_the_start_is_judged_at_one_rendering():
     gm, frame = target_frame(width=64, height=48)
     start = se3_exp(torch.tensor([0.005, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=torch.float64)).numpy()
     for keep_start in (False, True):
-        gn = GaussNewtonSettings(min_width=8, iterations=(0, 0), keep_start=keep_start)
-        s = TrackingSettings(method="gauss_newton", sil_threshold=0.99, gauss_newton=gn)
-        result = GaussNewtonTracker(s, TORCH).track(gm, frame, start, False)
+        gn = GaussNewtonSettings(iterations=(0, 0), keep_start=keep_start)
+        result = gn_tracker(gn).track(gm, frame, start, False)
         assert np.array_equal(result.w2c, start) and result.renders == 1 and result.iterations == 0
         assert np.isfinite(result.loss) and result.valid_fraction > 0.3 and result.rendering is not None
-    solving = replace(s, gauss_newton=replace(gn, iterations=(2, 2)))
-    moved = GaussNewtonTracker(solving, TORCH).track(gm, frame, start, False)
+    moved = gn_tracker(replace(gn, iterations=(2, 2))).track(gm, frame, start, False)
     assert moved.renders == 2 and moved.loss < result.loss  # with steps it solves and renders again

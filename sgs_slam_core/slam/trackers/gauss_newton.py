@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from typing import Literal
 
 import numpy as np
 import torch
@@ -39,13 +40,28 @@ from sgs_slam_core.slam.tracker import TrackRendering, TrackResult, track
 __all__ = ["GaussNewtonTracker"]
 
 _LUMA = (0.299, 0.587, 0.114)  # ITU-R BT.601 weights of R, G, B in the intensity
+# Times the map is rendered and the frame aligned to that rendering, each from the last result; one
+# more render judges the result (the Adam tracker's loss, for the guard). One: with the judging
+# render, two renders a frame, so live runs keep up with a camera (``live.tracking_method``).
+RENDERS = 1
+# The colour term aligns the frame's ``intensity`` (one channel, BT.601 luma) or ``rgb`` (three).
+COLOR_CHANNELS: Literal["intensity", "rgb"] = "intensity"
+# The finest this many pyramid levels carry the intensity and semantic terms (0 = every level);
+# coarser levels align depth alone, which converges from farther.
+PHOTOMETRIC_LEVELS = 1
+# Steps of the Adam tracker after the solve (its loss, keeping the best evaluated pose, so never worse
+# than the solve by that loss); 0 = none: each would cost one more render of the map.
+ADAM_STEPS = 0
+# Those steps' learning rates as a fraction of ``tracking.adam.lr_*``: the solve starts them near the
+# optimum, where the full rates overshoot.
+ADAM_LR_SCALE = 0.25
 
 
 class GaussNewtonTracker:
-    """Renders the map ``gauss_newton.renders`` times per frame and solves for the pose by Gauss-Newton.
+    """Renders the map ``RENDERS`` times per frame and solves for the pose by Gauss-Newton.
 
     The result is judged by the Adam tracker's loss at one more rendering, so the failure guard sees
-    the same quantities whichever tracker runs; ``gauss_newton.adam_steps`` > 0 polishes it with
+    the same quantities whichever tracker runs; ``ADAM_STEPS`` > 0 polishes it with
     that many Adam steps instead. With no steps at any level the start (the motion model's
     prediction) is judged at its one rendering.
     """
@@ -74,19 +90,19 @@ class GaussNewtonTracker:
         fixed = gaussians.detach()
         semantic = use_semantics and frame.semantic is not None and self.gn.semantic_scale_m > 0
         init = torch.as_tensor(init_w2c, dtype=torch.float64, device=fixed.device)
-        steps = sum(self.icp.steps_for(frame.intrinsics.width)) * self.gn.renders
-        if steps == 0 and self.gn.adam_steps == 0:  # no solve: the start, judged at its own rendering
+        steps = sum(self.icp.steps_for(frame.intrinsics.width)) * RENDERS
+        if steps == 0 and ADAM_STEPS == 0:  # no solve: the start, judged at its own rendering
             with stage("track.render"), torch.no_grad():
                 start = self.kernels.render(fixed, frame.intrinsics, init.float(), with_semantics=use_semantics)
             return self._judge(gaussians, frame, (init, start), use_semantics, init_w2c, 0, t0, at_start=True)
         landmarks = landmarks if landmarks is not None and len(landmarks) and self.gn.feature_weight > 0 else None
         w2c, start = self._solve(fixed, frame, init, semantic, use_semantics and self.gn.keep_start, landmarks)
-        if self.gn.adam_steps > 0:
-            scale = self.gn.adam_lr_scale
+        if ADAM_STEPS > 0:
+            scale = ADAM_LR_SCALE
             a = self.settings.adam
             polish = replace(
                 a,
-                iterations=self.gn.adam_steps,
+                iterations=ADAM_STEPS,
                 lr_rotation=a.lr_rotation * scale,
                 lr_translation=a.lr_translation * scale,
             )
@@ -98,7 +114,7 @@ class GaussNewtonTracker:
                 polished,
                 iterations=steps + polished.iterations,
                 time_s=time.perf_counter() - t0,
-                renders=self.gn.renders + polished.iterations,
+                renders=RENDERS + polished.iterations,
             )
         return self._judge(gaussians, frame, (w2c, start), use_semantics, init_w2c, steps, t0)
 
@@ -123,7 +139,7 @@ class GaussNewtonTracker:
         sources = None if channels is None else self._photometric(source_channels(channels, self._kept(levels)), levels)
         eye = torch.eye(4, dtype=torch.float64, device=w2c.device)
         rendered: list[RenderOutput] = []
-        for i in range(self.gn.renders):
+        for i in range(RENDERS):
             with_semantics = semantic or (i == 0 and judged_semantics)
             with stage("track.render"):
                 rendered.append(self.kernels.render(gaussians, k, w2c.float(), with_semantics=with_semantics))
@@ -131,7 +147,7 @@ class GaussNewtonTracker:
                 reference = self._reference(rendered[-1], k, levels, semantic)
                 aligned = self._align(depth, k, reference, eye, sources, self._observations(landmarks, w2c))
                 w2c = se3_inverse(aligned) @ w2c  # the frame's camera -> the rendered camera
-        return w2c, rendered[0]  # renders >= 1: the settings check it
+        return w2c, rendered[0]  # RENDERS >= 1
 
     def _align(
         self,
@@ -180,7 +196,7 @@ class GaussNewtonTracker:
 
     def _kept(self, levels: int) -> int:
         """How many of the finest of ``levels`` pyramid levels carry the photometric terms."""
-        return min(self.gn.photometric_levels or levels, levels)
+        return min(PHOTOMETRIC_LEVELS or levels, levels)
 
     def _photometric(self, finest: list[Tensor], levels: int) -> list[Tensor | None]:
         """Per pyramid level (coarsest first), its channels where it carries the photometric terms, else None.
@@ -193,7 +209,7 @@ class GaussNewtonTracker:
     def _channels(self, rgb: Tensor, semantic: Tensor | None) -> Tensor | None:  # [H, W, 3], [H, W, S] -> [H, W, C]
         """Intensity and semantic features scaled to metres of residual; None when both terms are off."""
         parts = []
-        if self.gn.color_scale_m > 0 and self.gn.color_channels == "rgb":
+        if self.gn.color_scale_m > 0 and COLOR_CHANNELS == "rgb":
             parts.append(rgb * self.gn.color_scale_m)
         elif self.gn.color_scale_m > 0:
             luma = torch.tensor(_LUMA, dtype=rgb.dtype, device=rgb.device) * self.gn.color_scale_m
@@ -229,7 +245,7 @@ class GaussNewtonTracker:
         else:
             with stage("track.render"), torch.no_grad():
                 out = self.kernels.render(gaussians, frame.intrinsics, w2c.float(), with_semantics=use_semantics)
-            keep_start, renders = self.gn.keep_start, self.gn.renders + 1
+            keep_start, renders = self.gn.keep_start, RENDERS + 1
         with stage("track.loss"):
             judged = (out, start) if keep_start else (out,)
             stats = torch.cat([self._loss_stats(rendered, frame, use_semantics) for rendered in judged])
