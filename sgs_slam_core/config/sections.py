@@ -184,10 +184,9 @@ class MotionSettings:
         constant_velocity: predict from the last two poses (else start at the last pose).
         icp_iterations: Gauss-Newton steps of a depth-to-depth ICP against the last tracked frame
             that refines the motion prediction before tracking, per pyramid level, coarsest first
-            (the last level is the full image); empty = no ICP.
-        icp_max_distance_m: ICP correspondences farther apart than this (m) are left out.
-        icp_min_inliers: the ICP result is used only when at least this fraction of the frame's
-            pixels with depth find a correspondence; otherwise the prediction is kept.
+            (the last level is the full image); empty = no ICP. Its correspondences reach 0.1 m and
+            its result needs 30 % of the frame's pixels with depth to find one
+            (``geometry.icp.IcpSettings``, ``slam.motion.ICP_MIN_INLIERS``).
         icp_min_gap: run the ICP only on frames that come at least this many camera frame
             intervals (the shortest gap between two tracked frames) after the last tracked one,
             i.e. when frames were dropped and the prediction extrapolates; 0 = on every frame
@@ -202,8 +201,6 @@ class MotionSettings:
 
     constant_velocity: bool = True
     icp_iterations: tuple[int, ...] = (6, 4, 3)
-    icp_max_distance_m: float = 0.1
-    icp_min_inliers: float = 0.3
     icp_min_gap: float = 1.5
     icp_reference_distance_m: float = 0.0
     icp_reference_angle_deg: float = 0.0
@@ -211,7 +208,6 @@ class MotionSettings:
     def __post_init__(self) -> None:
         if any(n < 0 for n in self.icp_iterations) or len(self.icp_iterations) > 6:
             raise ConfigError(f"motion.icp_iterations must be at most 6 counts >= 0, got {list(self.icp_iterations)}")
-        _positive("motion", icp_max_distance_m=self.icp_max_distance_m)
         _non_negative(
             "motion",
             icp_min_gap=self.icp_min_gap,
@@ -219,15 +215,13 @@ class MotionSettings:
         )
         if not 0 <= self.icp_reference_angle_deg <= 90:
             raise ConfigError(f"motion.icp_reference_angle_deg must be in [0, 90], got {self.icp_reference_angle_deg}")
-        if not 0 <= self.icp_min_inliers <= 1:
-            raise ConfigError(f"motion.icp_min_inliers must be in [0, 1], got {self.icp_min_inliers}")
 
     @property
     def icp(self) -> IcpSettings | None:
         """The ICP that refines the motion prediction, or None when off."""
         if not any(self.icp_iterations):
             return None
-        return IcpSettings(iterations=self.icp_iterations, max_distance_m=self.icp_max_distance_m)
+        return IcpSettings(iterations=self.icp_iterations)
 
 
 @dataclass(frozen=True)
@@ -243,44 +237,27 @@ class FeatureSettings:
         enabled: extract and use features (off: constant velocity and the depth ICP only, no
             relocalization).
         count: ORB keypoints per frame at most.
-        levels: ORB pyramid levels (1.2 apart).
         fast_threshold: FAST corner threshold (intensity levels of 255): lower finds corners in
             blurred frames.
-        max_distance: matches whose descriptors differ in more bits (of 256) are dropped.
         min_inliers: a feature pose needs at least this many matches within ``reprojection_px``.
         reprojection_px: RANSAC's inlier threshold (px).
-        ransac_iterations: RANSAC hypotheses per solve.
-        start_agreement: the constant-velocity guess stays the start while it explains at least
-            this share of the feature pose's inlier matches (each within twice
-            ``reprojection_px``); otherwise the feature pose replaces it. A guess that explains
-            them is as good a start, and tracking refines either.
     """
 
     enabled: bool = True
     count: int = 300
-    levels: int = 3
     fast_threshold: int = 10
-    max_distance: int = 64
     min_inliers: int = 20
     reprojection_px: float = 2.0
-    ransac_iterations: int = 100
-    start_agreement: float = 0.8
 
     def __post_init__(self) -> None:
         _positive(
             "features",
             count=self.count,
-            levels=self.levels,
             fast_threshold=self.fast_threshold,
             reprojection_px=self.reprojection_px,
-            ransac_iterations=self.ransac_iterations,
         )
-        if not 0 <= self.start_agreement <= 1:
-            raise ConfigError(f"features.start_agreement must be in [0, 1], got {self.start_agreement}")
         if self.min_inliers < 6:
             raise ConfigError(f"features.min_inliers must be >= 6 (a PnP needs them), got {self.min_inliers}")
-        if not 0 < self.max_distance <= 256:
-            raise ConfigError(f"features.max_distance must be in (0, 256] bits, got {self.max_distance}")
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ from sgs_slam_core.config.sections import FeatureSettings
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.slam.features import (
+    MAX_DISTANCE,
     FeatureMotion,
     FrameFeatures,
     Landmarks,
@@ -91,7 +92,7 @@ class FeatureView:
 
     def against(self, reference: FeatureReference, settings: FeatureSettings) -> FeatureView:
         """This frame's features matched and solved against another ``reference`` (a keyframe)."""
-        matches = match_features(reference.features, self.features, settings.max_distance)
+        matches = match_features(reference.features, self.features, MAX_DISTANCE)
         return FeatureView(
             self.features, reference, matches, solve_motion(reference.features, self.features, matches, settings)
         )

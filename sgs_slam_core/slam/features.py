@@ -18,6 +18,7 @@ from sgs_slam_core.config.sections import FeatureSettings
 from sgs_slam_core.geometry.camera import Intrinsics
 
 __all__ = [
+    "MAX_DISTANCE",
     "FeatureMotion",
     "FrameFeatures",
     "Landmarks",
@@ -29,6 +30,9 @@ __all__ = [
     "solve_motion",
 ]
 
+ORB_LEVELS = 3  # ORB pyramid levels (1.2 apart)
+MAX_DISTANCE = 64  # matches whose descriptors differ in more bits (of 256) are dropped
+RANSAC_ITERATIONS = 100  # RANSAC hypotheses per PnP solve
 _RATIO = 0.8  # Lowe's ratio test: the best match must be this much closer than the second best
 _DEPTH_SEARCH = ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1))  # a keypoint on a depth hole takes a neighbour's depth
 
@@ -96,7 +100,7 @@ def _detector(settings: FeatureSettings, width: int) -> cv2.ORB:
     return cv2.ORB_create(
         nfeatures=settings.count,
         scaleFactor=1.2,
-        nlevels=settings.levels,
+        nlevels=ORB_LEVELS,
         edgeThreshold=patch,
         patchSize=patch,
         fastThreshold=settings.fast_threshold,
@@ -183,7 +187,7 @@ def solve_motion(
         pixels,
         camera,
         None,
-        iterationsCount=settings.ransac_iterations,
+        iterationsCount=RANSAC_ITERATIONS,
         reprojectionError=settings.reprojection_px,
         confidence=0.999,
         flags=cv2.SOLVEPNP_EPNP,

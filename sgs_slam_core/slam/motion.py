@@ -21,6 +21,14 @@ from sgs_slam_core.slam.pose import predict_constant_velocity
 
 __all__ = ["MotionModel", "Start"]
 
+# The ICP result is used only when at least this fraction of the frame's pixels with depth find a
+# correspondence; otherwise the prediction is kept.
+ICP_MIN_INLIERS = 0.3
+# The constant-velocity guess stays the start while it explains at least this share of the feature
+# pose's inlier matches (each within twice ``features.reprojection_px``); otherwise the feature pose
+# replaces it. A guess that explains them is as good a start, and tracking refines either.
+START_AGREEMENT = 0.8
+
 
 class Start(NamedTuple):
     """A frame's starting pose and where it came from."""
@@ -51,7 +59,7 @@ class MotionModel:
         self._min_interval_ns: int | None = None  # shortest stamp gap between two tracked frames
         icp = settings.icp
         policy = ReferencePolicy(settings.icp_reference_distance_m, settings.icp_reference_angle_deg)
-        self._icp = None if icp is None else IcpInit(icp, settings.icp_min_inliers, icp_kernels, policy)
+        self._icp = None if icp is None else IcpInit(icp, ICP_MIN_INLIERS, icp_kernels, policy)
 
     def resume(self, poses: list[np.ndarray]) -> None:
         """Continue from a saved run's last poses (c2w [4, 4], oldest first)."""
@@ -75,7 +83,7 @@ class MotionModel:
         """The starting pose of a frame taken at ``stamp_ns``; ``data`` is its depth for the ICP.
 
         ``view`` (:meth:`view` of the frame): its feature pose replaces the constant-velocity guess
-        where the guess explains fewer of its inlier matches than ``features.start_agreement``.
+        where the guess explains fewer of its inlier matches than ``START_AGREEMENT``.
         """
         poses = [*self._resumed, *(c2w for _, c2w in self._history)]
         prev = poses[-1] if poses else self.initial_c2w
@@ -119,7 +127,7 @@ class MotionModel:
         if s is None:
             return False
         explained = view.agreement(guess, s.reprojection_px)
-        return explained is not None and explained < s.start_agreement
+        return explained is not None and explained < START_AGREEMENT
 
     def observe(
         self, stamp_ns: int, c2w: np.ndarray, data: FrameTensors | None, view: FeatureView | None = None

@@ -17,7 +17,7 @@ from sgs_slam_core.config.sections import FeatureSettings
 from sgs_slam_core.frame import CompactFrame
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.slam.feature_odometry import FeatureReference, FeatureView
-from sgs_slam_core.slam.features import extract_features
+from sgs_slam_core.slam.features import MAX_DISTANCE, extract_features
 
 __all__ = ["Relocalizer"]
 
@@ -68,7 +68,7 @@ class Relocalizer:
         matcher.add([kf.features.descriptors for kf in usable])
         votes = np.zeros(len(usable), dtype=np.int64)
         for m in matcher.match(features.descriptors):
-            if m.distance <= self.settings.max_distance:
+            if m.distance <= MAX_DISTANCE:
                 votes[m.imgIdx] += 1
         order = np.argsort(-votes, kind="stable")
         return [usable[i] for i in order if votes[i] > 0]

@@ -14,7 +14,7 @@ from sgs_slam_core.geometry.se3 import rotation_angle_deg
 from sgs_slam_core.labels import LabelTable
 from sgs_slam_core.semantics import SemanticCodec, SemanticSettings
 from sgs_slam_core.slam.feature_odometry import FeatureOdometry
-from sgs_slam_core.slam.features import extract_features, match_features, solve_motion
+from sgs_slam_core.slam.features import MAX_DISTANCE, extract_features, match_features, solve_motion
 from sgs_slam_core.slam.motion import MotionModel
 from sgs_slam_core.slam.pose import predict_constant_velocity
 
@@ -59,7 +59,7 @@ def test_a_keypoint_on_a_depth_hole_takes_a_neighbours_depth_or_none():
 @pytest.mark.parametrize("apart", [4, 10])
 def test_pnp_finds_the_motion_between_two_views(apart):
     a, b = features(0), features(apart)
-    matches = match_features(a, b, SETTINGS.max_distance)
+    matches = match_features(a, b, MAX_DISTANCE)
     motion = solve_motion(a, b, matches, SETTINGS)
     assert motion is not None and motion.inliers >= SETTINGS.min_inliers
     degrees, metres = pose_error(motion.ref_to_query, relative(0, apart))
@@ -71,7 +71,7 @@ def test_unrelated_descriptors_give_no_pose():
     a = features(0)
     rng = np.random.default_rng(0)
     scrambled = dataclasses.replace(a, descriptors=rng.integers(0, 256, a.descriptors.shape, dtype=np.uint8))
-    matches = match_features(scrambled, features(4), SETTINGS.max_distance)
+    matches = match_features(scrambled, features(4), MAX_DISTANCE)
     assert solve_motion(scrambled, features(4), matches, SETTINGS) is None
 
 
