@@ -445,10 +445,9 @@ class KeyframeSettings:
     Attributes:
         every: frame t becomes a keyframe when (t + 1) % every == 0 (and frame 0), as the reference.
         window_size: frames per mapping window, current frame and last keyframe included (<= 25 in the paper).
-        overlap_samples: current-frame pixels projected into keyframes to score the overlap.
-        overlap_border_frac: projections within this fraction of the width from the border do not count.
-        geometric_filter: keep only keyframes whose overlap exceeds ``geometric_threshold`` (paper eta;
-            off = keep every keyframe with any overlap, as the released code).
+        geometric_filter: keep only keyframes whose overlap (the share of 1600 of the frame's pixels
+            that project into the keyframe's view) exceeds ``geometric_threshold`` (paper eta; off =
+            keep every keyframe with any overlap, as the released code).
         geometric_threshold: eta (0.05 in the paper).
         semantic_filter: drop candidates whose label mIoU with the current frame exceeds
             ``semantic_threshold``: near-identical views add little (paper; not in the code).
@@ -471,8 +470,6 @@ class KeyframeSettings:
 
     every: int = 5
     window_size: int = 24
-    overlap_samples: int = 1600
-    overlap_border_frac: float = 0.02
     geometric_filter: bool = True
     geometric_threshold: float = 0.05
     semantic_filter: bool = True
@@ -487,7 +484,7 @@ class KeyframeSettings:
     replace_min_age: int = 30
 
     def __post_init__(self) -> None:
-        _positive("keyframes", every=self.every, overlap_samples=self.overlap_samples)
+        _positive("keyframes", every=self.every)
         _non_negative("keyframes", keep_recent=self.keep_recent)
         _check_view_test("keyframes.replace", self.replace_radius_m, self.replace_angle_deg, self.replace_min_age)
         if self.max_keyframes is not None and self.max_keyframes < max(self.keep_recent, 2):
@@ -498,7 +495,7 @@ class KeyframeSettings:
             raise ConfigError(f"keyframes.window_size must be >= 2, got {self.window_size}")
         if not (0 <= self.geometric_threshold < 1 and 0 < self.semantic_threshold <= 1):
             raise ConfigError("keyframes thresholds must be fractions")
-        _non_negative("keyframes", uncertainty_tau=self.uncertainty_tau, overlap_border_frac=self.overlap_border_frac)
+        _non_negative("keyframes", uncertainty_tau=self.uncertainty_tau)
 
 
 @dataclass(frozen=True)
@@ -506,13 +503,12 @@ class GuardSettings:
     """Tracking-failure detection: a flagged frame is not mapped, so the map stays intact.
 
     Attributes:
-        enabled: switch the guard on.
+        enabled: switch the guard on (it also flags a frame whose pixels are less than 5 % both
+            measured and well mapped).
         warmup_frames: frames tracked before the guard starts judging.
-        history: past frames whose median is the reference.
-        residual_jump: flag when the mean depth residual exceeds this times the recent median.
+        residual_jump: flag when the mean depth residual exceeds this times the median of the last 20
+            accepted frames (and 2 cm, the noise floor: ``slam.guard``'s constants).
         loss_jump: flag when the per-pixel tracking loss exceeds this times the recent median.
-        min_valid_fraction: flag when fewer pixels than this are both measured and well mapped.
-        min_residual_m: residuals below this never flag (noise floor).
         retry: a flagged frame is tracked once more, from its feature pose where the features give
             one and it was not the start already, else from the last accepted pose (without the
             motion prediction, refined by the motion ICP when that is on), and accepted if that
@@ -524,37 +520,24 @@ class GuardSettings:
             within ``features.reprojection_px`` (0 = no feature check).
         lost_after: this many flagged frames in a row mean the camera is lost: nothing is mapped
             and every frame is relocalized until one is found again (0 = never lost).
-        relocalize_candidates: a lost frame is tracked from at most this many candidate poses: the
-            keyframes whose features match it best (and the last accepted frame's), each solved by
-            PnP first.
-        relocalize_min_inliers: a candidate needs this many feature matches agreeing with its PnP
-            pose; the tracked pose from it must then pass every test above.
+        relocalize_min_inliers: a lost frame is tracked from at most 3 candidate poses (the keyframes
+            whose features match it best, and the last accepted frame's, each solved by PnP first:
+            ``slam.localization.RELOCALIZE_CANDIDATES``); a candidate needs this many feature matches
+            agreeing with its PnP pose; the tracked pose from it must then pass every test above.
     """
 
     enabled: bool = True
     warmup_frames: int = 3
-    history: int = 20
     residual_jump: float = 6.0
     loss_jump: float = 6.0
-    min_valid_fraction: float = 0.05
-    min_residual_m: float = 0.02
     retry: bool = True
     min_feature_agreement: float = 0.5
     lost_after: int = 2
-    relocalize_candidates: int = 3
     relocalize_min_inliers: int = 30
 
     def __post_init__(self) -> None:
-        _positive("guard", history=self.history, residual_jump=self.residual_jump, loss_jump=self.loss_jump)
-        _non_negative(
-            "guard",
-            warmup_frames=self.warmup_frames,
-            min_residual_m=self.min_residual_m,
-            lost_after=self.lost_after,
-            relocalize_candidates=self.relocalize_candidates,
-        )
-        if not 0 <= self.min_valid_fraction < 1:
-            raise ConfigError("guard.min_valid_fraction must be in [0, 1)")
+        _positive("guard", residual_jump=self.residual_jump, loss_jump=self.loss_jump)
+        _non_negative("guard", warmup_frames=self.warmup_frames, lost_after=self.lost_after)
         if not 0 <= self.min_feature_agreement <= 1:
             raise ConfigError(f"guard.min_feature_agreement must be in [0, 1], got {self.min_feature_agreement}")
         if self.relocalize_min_inliers < 6:
@@ -572,8 +555,6 @@ class LiveSettings:
             in progress ends, and mapping only fills the time between frames). 0 by default: a
             compulsory step a frame cost fr1/desk (tracking 20 ms a frame on 2 cores) a fifth of
             its frames live, and the map was no better for it.
-        preempt_fraction: with mapping on its own CUDA stream beside tracking, a job ends once it
-            made this fraction of its steps and a newer frame waits to be mapped (1 = never early).
         tracking_method: the tracker live runs use in place of ``tracking.method`` (null: that
             one). Gauss-Newton by default: it renders the map twice a frame where Adam renders it
             at every step, so it keeps up with a camera; lockstep runs keep ``tracking.method``.
@@ -602,7 +583,6 @@ class LiveSettings:
     """
 
     map_turn_fraction: float = 0.0
-    preempt_fraction: float = 1 / 3
     tracking_method: TrackerName | None = "gauss_newton"
     mapping_every: int | None = None
     refresh_labels_keyframes_only: bool | None = True
@@ -622,6 +602,5 @@ class LiveSettings:
             _positive("live", densify_depth_error_factor=self.densify_depth_error_factor)
         if self.mapping_every is not None and self.mapping_every < 1:
             raise ConfigError(f"live.mapping_every must be >= 1 or null, got {self.mapping_every}")
-        for name, value in (("map_turn_fraction", self.map_turn_fraction), ("preempt_fraction", self.preempt_fraction)):
-            if not 0 <= value <= 1:
-                raise ConfigError(f"live.{name} must be in [0, 1], got {value}")
+        if not 0 <= self.map_turn_fraction <= 1:
+            raise ConfigError(f"live.map_turn_fraction must be in [0, 1], got {self.map_turn_fraction}")

@@ -25,7 +25,7 @@ tracking never waits for labels. A background task (an autosave writing the map)
 :meth:`SlamPipeline.background_turn`: on the CPU the tracker waits for a part as for a mapping
 step, and a part waits for the frame being tracked.
 On CUDA the mapping thread runs on its own stream, beside tracking, and a job ends early when a
-newer one waits and it made ``preempt_fraction`` of its steps.
+newer one waits and it made ``PREEMPT_FRACTION`` of its steps.
 Two synchronisations make that safe: the mapping thread finishes its stream's work before ``Slam``
 publishes a map (``Slam.map``'s ``before_publish``), and tracking reads its result back to the host
 before it returns, so no tensor is freed while a kernel of the other thread may still read it.
@@ -62,6 +62,10 @@ from sgs_slam_core.slam.guard import TrackingState
 from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
 
 __all__ = ["MapJob", "PipelineStats", "SlamPipeline", "SlamSnapshot"]
+
+# With mapping on its own CUDA stream beside tracking, a job ends once it made this fraction of its
+# steps and a newer frame waits to be mapped (1 = never early), so a GPU moves on to the newest frame.
+PREEMPT_FRACTION = 1 / 3
 
 
 class _StoppingError(Exception):
@@ -138,8 +142,8 @@ class SlamPipeline:
     ``track`` / ``map``: which workers run here (a standalone tracking or mapping node runs one).
     ``ready_to_track(frames_tracked)``: an extra lockstep condition (a remote map has caught up).
     ``late_labels``: label images come on their own (:meth:`submit_labels`), not with the frames.
-    How live work shares the machine comes from ``slam.config.live`` (``map_turn_fraction``,
-    ``preempt_fraction``).
+    How live work shares the machine comes from ``slam.config.live`` (``map_turn_fraction``) and
+    ``PREEMPT_FRACTION``.
     Listeners are called on the worker threads; one that raises is logged and counted.
     """
 
@@ -177,7 +181,7 @@ class SlamPipeline:
         self._turn_steps = math.ceil(live.map_turn_fraction * iterations) if self._share_cpu else 0
         self._map_steps = 0  # steps the current mapping job has made
         # live beside tracking: a job with a newer one waiting ends after this many steps (0: it never does)
-        self._preempt_steps = 0 if lockstep or self._share_cpu else math.ceil(live.preempt_fraction * iterations)
+        self._preempt_steps = 0 if lockstep or self._share_cpu else math.ceil(PREEMPT_FRACTION * iterations)
         self._threads = []
         if track:
             self._threads.append(threading.Thread(target=self._track_loop, name="sgs-track", daemon=True))

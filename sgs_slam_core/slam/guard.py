@@ -20,6 +20,9 @@ from sgs_slam_core.config.sections import GuardSettings
 __all__ = ["GuardCounts", "TrackingGuard", "TrackingState"]
 
 TrackingState = Literal["ok", "lost", "relocalized"]  # relocalized: the frame that found the camera again
+HISTORY = 20  # past accepted frames whose median residual and loss are the reference
+MIN_VALID_FRACTION = 0.05  # flag when fewer pixels than this are both measured and well mapped
+MIN_RESIDUAL_M = 0.02  # depth residuals below this never flag: the depth camera's noise floor
 
 
 @dataclass(frozen=True)
@@ -36,8 +39,8 @@ class TrackingGuard:
 
     def __init__(self, settings: GuardSettings) -> None:
         self.s = settings
-        self._residuals: deque[float] = deque(maxlen=settings.history)
-        self._losses: deque[float] = deque(maxlen=settings.history)
+        self._residuals: deque[float] = deque(maxlen=HISTORY)
+        self._losses: deque[float] = deque(maxlen=HISTORY)
         self.seen = 0
         self.state: TrackingState = "ok"
         self._failures_in_row = 0
@@ -83,7 +86,7 @@ class TrackingGuard:
 
     def _unexplained(self, residual_m: float, valid_fraction: float, agreement: float | None) -> str | None:
         """Why the pose fails whatever the history: too little mapped, or the features contradict it."""
-        if valid_fraction < self.s.min_valid_fraction:
+        if valid_fraction < MIN_VALID_FRACTION:
             return f"only {valid_fraction:.1%} of pixels are measured and mapped"
         if not np.isfinite(residual_m):
             return "no pixel to track against"
@@ -97,9 +100,9 @@ class TrackingGuard:
             return None
         med_res = float(np.median(self._residuals))
         med_loss = float(np.median(self._losses))
-        if residual_m > max(self.s.residual_jump * med_res, self.s.min_residual_m):
+        if residual_m > max(self.s.residual_jump * med_res, MIN_RESIDUAL_M):
             return f"depth residual {residual_m * 100:.1f} cm vs recent {med_res * 100:.1f} cm"
-        if med_loss > 0 and loss_per_pixel > self.s.loss_jump * med_loss and residual_m > self.s.min_residual_m:
+        if med_loss > 0 and loss_per_pixel > self.s.loss_jump * med_loss and residual_m > MIN_RESIDUAL_M:
             return f"tracking loss {loss_per_pixel:.3g}/px vs recent {med_loss:.3g}/px"
         return None
 

@@ -21,7 +21,7 @@ import numpy as np
 from sgs_slam_core.config.sections import KeyframeSettings
 from sgs_slam_core.frame import DEPTH_UNITS_PER_M, CompactFrame, compact_labels
 from sgs_slam_core.geometry.views import views_near
-from sgs_slam_core.slam.keyframes import label_miou, overlap_scores
+from sgs_slam_core.slam.keyframes import OVERLAP_BORDER_FRAC, label_miou, overlap_scores
 
 __all__ = ["KeyframeStore", "StoreStats", "view_points"]
 
@@ -192,9 +192,8 @@ class KeyframeStore(Sequence[CompactFrame]):
 
     def _score_against(self, new: _Entry) -> None:
         """Record how well ``new`` covers each older keyframe's view (overlap, times label agreement)."""
-        s = self.settings
         for e in self._entries:
-            overlap = float(overlap_scores(e.points, [new.frame], s.overlap_border_frac)[0])
+            overlap = float(overlap_scores(e.points, [new.frame], OVERLAP_BORDER_FRAC)[0])
             if overlap > 0 and e.thumb is not None and new.thumb is not None and e.thumb.shape == new.thumb.shape:
                 overlap *= 0.5 + 0.5 * label_miou(e.thumb, new.thumb)  # same view, same classes: redundant
             if overlap > 0:

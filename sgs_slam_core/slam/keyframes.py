@@ -10,7 +10,18 @@ import numpy as np
 from sgs_slam_core.config.sections import KeyframeSettings
 from sgs_slam_core.frame import CompactFrame
 
-__all__ = ["Window", "is_keyframe", "label_miou", "label_miou_per_class", "overlap_scores", "select_window"]
+__all__ = [
+    "OVERLAP_BORDER_FRAC",
+    "Window",
+    "is_keyframe",
+    "label_miou",
+    "label_miou_per_class",
+    "overlap_scores",
+    "select_window",
+]
+
+# Projections within this fraction of the width from a keyframe's border do not count as overlap.
+OVERLAP_BORDER_FRAC = 0.02
 
 
 def is_keyframe(index: int, every: int, last: int | None = None) -> bool:
@@ -116,7 +127,7 @@ def select_window(
     if not store:
         return Window((), (1.0,), 0, 0, 0)
     older = store[:-1]
-    scores = overlap_scores(points_world, older, s.overlap_border_frac)
+    scores = overlap_scores(points_world, older, OVERLAP_BORDER_FRAC)
     keep = [i for i, sc in enumerate(scores) if sc > 0]
     candidates = len(keep)
     if s.geometric_filter:

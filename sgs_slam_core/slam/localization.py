@@ -28,6 +28,10 @@ from sgs_slam_core.slam.trackers import Tracker
 
 __all__ = ["Localization", "Localizer"]
 
+# A lost frame is tracked from at most this many candidate poses: the keyframes whose features match
+# it best (and the last accepted frame's), each solved by PnP first; each one costs a tracking.
+RELOCALIZE_CANDIDATES = 3
+
 
 @dataclass(frozen=True)
 class Localization:
@@ -59,9 +63,7 @@ class Localizer:
         c = config
         relocalizes = c.features.enabled and c.guard.lost_after > 0
         self.relocalizer = (
-            Relocalizer(c.features, c.guard.relocalize_candidates, c.guard.relocalize_min_inliers)
-            if relocalizes
-            else None
+            Relocalizer(c.features, RELOCALIZE_CANDIDATES, c.guard.relocalize_min_inliers) if relocalizes else None
         )
 
     def locate(
@@ -174,11 +176,11 @@ class Localizer:
         """While lost: the frame tracked from each candidate the features give, the first the guard accepts.
 
         Candidates: the pose against the last accepted frame, then the keyframes that match best
-        (``guard.relocalize_candidates`` in all), each judged against its own feature matches.
+        (``RELOCALIZE_CANDIDATES`` in all), each judged against its own feature matches.
         """
         candidates = [] if view is None else self._candidates(keyframes, view)
         tried: TrackResult | None = None
-        for candidate in candidates[: self.config.guard.relocalize_candidates]:
+        for candidate in candidates[:RELOCALIZE_CANDIDATES]:
             start = self._candidate_start(keyframes, candidate, data)
             landmarks = self._landmarks(candidate)
             result = self.tracker.track(gaussians, data, np.linalg.inv(start), use_sem, None, landmarks)

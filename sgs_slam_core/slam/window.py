@@ -20,6 +20,11 @@ from sgs_slam_core.slam.mapper import WindowFrame
 __all__ = ["choose_window", "sample_world_points", "upload_window"]
 
 
+# Current-frame pixels projected into the keyframes to score their overlap, as the released code's
+# keyframe selection samples.
+OVERLAP_SAMPLES = 1600
+
+
 def sample_world_points(
     data: FrameTensors, c2w: np.ndarray, count: int, rng: np.random.Generator
 ) -> np.ndarray:  # [M, 3] float64 world points, M <= count
@@ -42,7 +47,7 @@ def choose_window(
     rng: np.random.Generator,
 ) -> Window:
     """The keyframes mapped with this frame and the loss weights (SGS-SLAM's overlap and label criteria)."""
-    points = sample_world_points(data, c2w, settings.overlap_samples, rng)
+    points = sample_world_points(data, c2w, OVERLAP_SAMPLES, rng)
     return select_window(store, points, labels, data.index, settings, rng)
 
 
