@@ -9,6 +9,7 @@ from typing import Any
 
 from sgs_slam_core.cli.run import open_input
 from sgs_slam_core.config import build
+from sgs_slam_core.config.loader import known_keys
 from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.mapio import load_map
@@ -54,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         raise DatasetError(f"{args.run_dir / 'run.yaml'} does not name the input; give it with --input")
     dataset = open_input(source, info.format, info.options, info.topics or None)
     saved = load_map(args.run_dir / "map.sgsmap")
-    config = build(SlamConfig, saved.config)
+    config = build(SlamConfig, known_keys(SlamConfig, saved.config))  # a map of an earlier version too
     frame_ids = [i for i, _, _ in saved.trajectory]  # dataset frame indices
     poses = [p for _, _, p in saved.trajectory]
     if frame_ids and not 0 <= min(frame_ids) <= max(frame_ids) < len(dataset):

@@ -25,6 +25,7 @@ __all__ = [
     "config_fields",
     "config_to_dict",
     "dump_yaml",
+    "known_keys",
     "list_presets",
     "load_layers",
     "load_yaml",
@@ -124,6 +125,22 @@ def build(cls: type[T], data: Mapping[str, Any], where: str = "") -> T:
 def config_fields(cls: Any) -> list[dataclasses.Field[Any]]:
     """The fields of dataclass ``cls`` (or instance) that are config keys: not internal ones."""
     return [f for f in dataclasses.fields(cls) if f.init and not f.metadata.get("internal")]
+
+
+def known_keys(cls: type, data: Mapping[str, Any]) -> dict[str, Any]:
+    """``data`` without what is no config key of dataclass ``cls``, at any level.
+
+    For configs another version wrote (a saved map's): keys that version had and this one retired
+    are dropped instead of failing the load. Files a user writes go through :func:`build` alone.
+    """
+    hints = get_type_hints(cls)
+    known = {f.name for f in config_fields(cls)}
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        if key in known:
+            section = dataclasses.is_dataclass(hints[key]) and isinstance(value, Mapping)
+            out[key] = known_keys(hints[key], value) if section else value
+    return out
 
 
 def config_to_dict(obj: Any) -> Any:

@@ -11,6 +11,7 @@ import numpy as np
 import torch
 
 from sgs_slam_core.config import build
+from sgs_slam_core.config.loader import known_keys
 from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.errors import ShapeError
 from sgs_slam_core.fileio import make_dir, write_image
@@ -40,7 +41,7 @@ class MapViews:
     device: torch.device
 
     def __post_init__(self) -> None:
-        config = build(SlamConfig, self.saved.config) if self.saved.config else None
+        config = build(SlamConfig, known_keys(SlamConfig, self.saved.config)) if self.saved.config else None
         s = self.saved.gaussians.num_semantic
         if config is not None and (config.semantic.mode == "color") == (s == 3):
             semantic = config.semantic

@@ -155,3 +155,14 @@ def test_the_configuration_reference_is_generated_from_the_schema_and_names_ever
     assert not undocumented, f"keys without a description in their section's Attributes: {undocumented}"
     doc = (Path(__file__).resolve().parents[2] / "docs" / "config.md").read_text()
     assert doc == config_reference(), "stale: run python -m sgs_slam_core.config.reference > docs/config.md"
+
+
+def test_a_saved_config_of_an_earlier_version_loads_without_its_retired_keys():
+    from sgs_slam_core.config.loader import known_keys
+
+    saved = config_to_dict(load_config("tum"))
+    saved["render"]["tile_size"] = 16  # keys an earlier version wrote into its maps
+    saved["tracking"]["adam"]["stop_patience"] = 5
+    with pytest.raises(ConfigError, match="unknown config key"):
+        build(SlamConfig, saved)
+    assert build(SlamConfig, known_keys(SlamConfig, saved)) == load_config("tum")
