@@ -408,7 +408,10 @@ class MappingNode(Node):
         return level, message, values
 
     def finish(self) -> None:
-        """Before the process exits (SIGINT, SIGTERM): finish the frames in hand, then save the map.
+        """Before the process exits (SIGINT, SIGTERM): map the frames in hand, then save the map.
+
+        Mapping jobs end at their next step (:meth:`SlamPipeline.finish`): the frames are in the
+        map, the exit does not wait for their refinement.
 
         Saved (``save_on_shutdown``) only if it changed since it was last saved or loaded. A
         second signal exits at once (:mod:`sgs_slam_ros.runtime`), leaving the last complete file.
@@ -417,7 +420,7 @@ class MappingNode(Node):
         if not self.params["save_on_shutdown"]:
             return
         log = self.get_logger()
-        if not self.pipeline.wait_idle(_FINISH_S):
+        if not self.pipeline.finish(_FINISH_S):
             log.warn(f"the frames in hand did not finish within {_FINISH_S:.0f} s: saving the map as it is")
         if not self.saver.changed:
             log.info(f"map unchanged since it was last saved or loaded: {self.saver.path} left as it is")

@@ -173,6 +173,7 @@ class SlamPipeline:
         self._cv = threading.Condition()
         self._busy = {"track": False, "map": False, "background": False}  # background: a part of a map write
         self._running = True
+        self._finishing = False  # before exit: each mapping job ends at its next step (finish())
         self._map_stream = torch.cuda.Stream(slam.device) if slam.device.type == "cuda" else None
         # live on the CPU: tracking and mapping take turns instead of sharing the cores (see the module doc)
         self._share_cpu = not lockstep and track and map and slam.device.type == "cpu"
@@ -366,6 +367,8 @@ class SlamPipeline:
         with self._cv:
             if not self._running:
                 raise _StoppingError
+            if self._finishing:
+                return False
             if self._share_cpu and self._frames and not self._in_turn():
                 return False
             if self._preempt_steps and self._jobs and self._map_steps >= self._preempt_steps:
@@ -418,6 +421,17 @@ class SlamPipeline:
     def wait_idle(self, timeout: float) -> bool:
         """Block until idle (or the timeout, s); True when idle."""
         with self._cv:
+            return self._cv.wait_for(self._idle, timeout=timeout)
+
+    def finish(self, timeout: float) -> bool:
+        """Before exit: the frames in hand tracked and mapped, each mapping job ending at its next step.
+
+        A job's frame is in the map once its Gaussians are added; the steps only refine it, and a
+        long window (thousands of steps on a CPU) would hold the exit. Blocks until idle or the
+        timeout (s); True when idle. The pipeline keeps working this way until :meth:`shutdown`.
+        """
+        with self._cv:
+            self._finishing = True
             return self._cv.wait_for(self._idle, timeout=timeout)
 
     def pause(self, paused: bool) -> None:

@@ -221,6 +221,23 @@ def test_shutdown_stops_mapping_at_its_next_step(lockstep):
     assert pipeline.stats.mapping_errors == 0 and pipeline.stats.mapped == 0  # abandoned, not failed
 
 
+def test_finishing_ends_the_mapping_job_at_its_next_step_and_keeps_its_frame():
+    """Before exit the frame in hand is mapped; its thousands of refinement steps do not hold the exit."""
+    slam = SlowMappingSlam()
+    pipeline = SlamPipeline(slam, lockstep=False, log=lambda _: None)
+    try:
+        pipeline.submit_frame(SimpleNamespace(index=0))
+        deadline = time.monotonic() + 5
+        while slam.steps < 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        started = time.monotonic()
+        assert pipeline.finish(10.0)
+        assert time.monotonic() - started < 2.0 and slam.steps < 200
+        assert pipeline.stats.mapped == 1 and pipeline.stats.mapping_errors == 0  # ended, not abandoned
+    finally:
+        pipeline.shutdown()
+
+
 def test_a_reset_never_maps_a_frame_tracked_before_it():
     """The reset waits until the tracked frame is handed over, then drops its mapping job."""
     slam = GatedSlam()
