@@ -13,9 +13,6 @@ from sgs_slam_core.geometry.depth_noise import DepthNoise
 from sgs_slam_core.geometry.gravity import OPTICAL_IN_BODY, pose_from_xyz_rpy
 from sgs_slam_core.geometry.icp import IcpSettings
 
-# The image width (px) the feature thresholds are given at: the 160x120 processing size they were tuned at.
-_FEATURE_REFERENCE_WIDTH_PX = 160
-
 __all__ = [
     "AdamTrackerSettings",
     "DensifySettings",
@@ -243,8 +240,7 @@ class FeatureSettings:
         fast_threshold: FAST corner threshold (intensity levels of 255): lower finds corners in
             blurred frames.
         min_inliers: a feature pose needs at least this many matches within ``reprojection_px``.
-        reprojection_px: RANSAC's inlier threshold (px of an image 160 pixels wide): a wider image
-            scales it with its width, so it is the same angle at any size.
+        reprojection_px: RANSAC's inlier threshold (px).
     """
 
     enabled: bool = True
@@ -252,15 +248,6 @@ class FeatureSettings:
     fast_threshold: int = 10
     min_inliers: int = 20
     reprojection_px: float = 2.0
-
-    def threshold_px(self, width: int) -> float:
-        """``reprojection_px`` for an image ``width`` pixels wide (px).
-
-        Above 160 pixels it grows with the width: tuned at 160x120, the same pixels at 320x240 are
-        half the angle and rejected true matches of blurred frames. Narrower images keep it, as ORB
-        keypoints are not located finer than a pixel.
-        """
-        return self.reprojection_px * max(1.0, width / _FEATURE_REFERENCE_WIDTH_PX)
 
     def __post_init__(self) -> None:
         _positive(

@@ -182,14 +182,13 @@ def solve_motion(
     if len(points) < max(settings.min_inliers, 6):
         return None
     camera = _camera_matrix(query.intrinsics)
-    threshold = settings.threshold_px(query.intrinsics.width)
     ok, rvec, tvec, inliers = cv2.solvePnPRansac(
         points,
         pixels,
         camera,
         None,
         iterationsCount=RANSAC_ITERATIONS,
-        reprojectionError=threshold,
+        reprojectionError=settings.reprojection_px,
         confidence=0.999,
         flags=cv2.SOLVEPNP_EPNP,
     )
@@ -200,7 +199,7 @@ def solve_motion(
     pose = np.eye(4)
     pose[:3, :3] = cv2.Rodrigues(rvec)[0]
     pose[:3, 3] = tvec.ravel()
-    count = int((_reprojection_errors(points, pixels, pose, query.intrinsics) <= threshold).sum())
+    count = int((_reprojection_errors(points, pixels, pose, query.intrinsics) <= settings.reprojection_px).sum())
     if count < settings.min_inliers:
         return None
     return FeatureMotion(pose, count, len(points))

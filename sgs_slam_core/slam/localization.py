@@ -155,16 +155,13 @@ class Localizer:
 
     def _landmarks(self, view: FeatureView | None) -> Landmarks | None:
         """The inlier matches of the frame's feature pose, as landmarks for the tracker (None without one)."""
-        if view is None:
-            return None
-        return view.landmarks(self.config.features.threshold_px(view.features.intrinsics.width))
+        return None if view is None else view.landmarks(self.config.features.reprojection_px)
 
     def _evidence(self, result: TrackResult, view: FeatureView | None) -> tuple[float, float, float, float | None]:
         """What the guard judges a tracked pose by: residual, loss per pixel, mapped fraction, feature agreement."""
         agreement = None
         if view is not None and np.isfinite(result.depth_residual_m):
-            threshold = self.config.features.threshold_px(view.features.intrinsics.width)
-            agreement = view.agreement(np.linalg.inv(result.w2c), threshold)
+            agreement = view.agreement(np.linalg.inv(result.w2c), self.config.features.reprojection_px)
         return result.depth_residual_m, result.loss_per_pixel, result.valid_fraction, agreement
 
     # ------------------------------------------------------------------ relocalization

@@ -126,7 +126,7 @@ class MotionModel:
         s = self.features.settings if self.features is not None else None
         if s is None:
             return False
-        explained = view.agreement(guess, s.threshold_px(view.features.intrinsics.width))
+        explained = view.agreement(guess, s.reprojection_px)
         return explained is not None and explained < START_AGREEMENT
 
     def observe(

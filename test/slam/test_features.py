@@ -67,12 +67,6 @@ def test_pnp_finds_the_motion_between_two_views(apart):
     assert degrees < 1.5 and metres < 0.1
 
 
-def test_the_inlier_threshold_is_one_angle_above_the_size_it_was_tuned_at():
-    s = FeatureSettings(reprojection_px=2.0)
-    assert s.threshold_px(160) == 2.0 and s.threshold_px(320) == 4.0 and s.threshold_px(640) == 8.0
-    assert s.threshold_px(64) == 2.0  # below a pixel ORB cannot place a keypoint
-
-
 def test_unrelated_descriptors_give_no_pose():
     a = features(0)
     rng = np.random.default_rng(0)
