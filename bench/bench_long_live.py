@@ -8,8 +8,8 @@ first's. A slope in either shows at a glance in the plot written beside the tabl
 Inputs:
 
 - a dataset folder at its recorded stamps (a TUM sequence of >= 20 s), or
-- ``--loop-s S``: the folder's frames played there and back until ``S`` seconds at ``--rate-hz``
-  (default: the built-in synthetic room, 200 frames, looped for two minutes at 30 Hz).
+- ``--loop-s S``: a generated scene's frames played there and back until ``S`` seconds at
+  ``--rate-hz`` (no folder given: the built-in synthetic room's 200 frames).
 
     python bench/bench_long_live.py /path/to/tum_fr1_xyz --downscale 4 [--repeats 2]
     python bench/bench_long_live.py --loop-s 120 --rate-hz 30 --downscale 2
@@ -78,6 +78,8 @@ def tenths(run_dir: Path) -> Tenths:
 
 def looped_copy(source: Path, out: Path, count: int) -> Path:
     """``count`` frames of the generated scene ``source`` there and back, its images linked, as a scene folder."""
+    if not (source / "frames").is_dir():
+        raise SystemExit(f"bench_long_live: --loop-s takes a generated scene (frames/, traj.txt); {source} is not one")
     total = len(list((source / "frames").iterdir()))
     period = [*range(total), *range(total - 2, 0, -1)]
     order = [period[i % len(period)] for i in range(count)]
