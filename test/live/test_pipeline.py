@@ -24,6 +24,16 @@ from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
 from ..conftest import FAST_SLAM
 
 
+def _wait_until(predicate, timeout: float) -> bool:
+    """Poll ``predicate`` every 10 ms until it holds (True) or ``timeout`` seconds pass (False)."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
 class GatedSlam:
     """Stands in for Slam: tracking blocks until released, so the test decides what is busy when."""
 
@@ -89,9 +99,7 @@ def test_frames_arriving_while_tracking_is_busy_replace_the_waiting_one():
     pipeline = SlamPipeline(slam, lockstep=False, log=lambda _: None)
     try:
         pipeline.submit_frame(SimpleNamespace(index=0))
-        deadline = time.monotonic() + 5
-        while not pipeline._busy["track"] and time.monotonic() < deadline:  # frame 0 is being tracked
-            time.sleep(0.01)
+        assert _wait_until(lambda: pipeline._busy["track"], 5.0)  # frame 0 is being tracked
         for i in range(1, 6):  # 1..4 are replaced in turn, 5 waits
             pipeline.submit_frame(SimpleNamespace(index=i))
         for _ in range(2):
@@ -167,9 +175,7 @@ def test_live_tracking_is_told_when_a_newer_frame_waits(lockstep):
         slam.gate.release()
         assert pipeline.wait_idle(5.0)
         pipeline.submit_frame(SimpleNamespace(index=1))
-        deadline = time.monotonic() + 5
-        while len(slam.asks) < 2 and time.monotonic() < deadline:  # frame 1 is being tracked
-            time.sleep(0.01)
+        assert _wait_until(lambda: len(slam.asks) >= 2, 5.0)  # frame 1 is being tracked
         ask = slam.asks[-1]
         if lockstep:  # every frame is kept, so tracking never ends early
             assert ask is None
@@ -211,9 +217,7 @@ def test_shutdown_stops_mapping_at_its_next_step(lockstep):
     slam = SlowMappingSlam()
     pipeline = SlamPipeline(slam, lockstep=lockstep, log=lambda _: None)
     pipeline.submit_frame(SimpleNamespace(index=0))
-    deadline = time.monotonic() + 5
-    while slam.steps < 3 and time.monotonic() < deadline:
-        time.sleep(0.01)
+    assert _wait_until(lambda: slam.steps >= 3, 5.0)
     started = time.monotonic()
     pipeline.shutdown(timeout=10.0)
     assert time.monotonic() - started < 2.0 and slam.steps < 200
@@ -227,9 +231,7 @@ def test_finishing_ends_the_mapping_job_at_its_next_step_and_keeps_its_frame():
     pipeline = SlamPipeline(slam, lockstep=False, log=lambda _: None)
     try:
         pipeline.submit_frame(SimpleNamespace(index=0))
-        deadline = time.monotonic() + 5
-        while slam.steps < 3 and time.monotonic() < deadline:
-            time.sleep(0.01)
+        assert _wait_until(lambda: slam.steps >= 3, 5.0)
         started = time.monotonic()
         assert pipeline.finish(10.0)
         assert time.monotonic() - started < 2.0 and slam.steps < 200
