@@ -517,7 +517,10 @@ class GuardSettings:
             accepted and mapped if that pose passes, else kept unmapped: the camera is not lost.
         min_feature_agreement: flag a pose that explains fewer than this share of the feature
             matches the frame's feature pose (against the last accepted frame) explains, each
-            within ``features.reprojection_px`` (0 = no feature check).
+            within ``features.reprojection_px`` (0 = no feature check). Against a feature pose with
+            ``relocalize_min_inliers`` matches, a pose turned over 5 deg from it is flagged too, and
+            one that explains 90 % of its matches is not flagged for a residual or loss jump
+            (``slam.guard``'s constants).
         lost_after: this many flagged frames in a row mean the camera is lost: nothing is mapped
             and every frame is relocalized until one is found again (0 = never lost).
         relocalize_min_inliers: a lost frame is tracked from at most 3 candidate poses (the keyframes
@@ -531,7 +534,7 @@ class GuardSettings:
     residual_jump: float = 6.0
     loss_jump: float = 6.0
     retry: bool = True
-    min_feature_agreement: float = 0.5
+    min_feature_agreement: float = 0.7
     lost_after: int = 2
     relocalize_min_inliers: int = 30
 

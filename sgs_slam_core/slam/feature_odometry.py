@@ -16,6 +16,7 @@ import numpy as np
 
 from sgs_slam_core.config.sections import FeatureSettings
 from sgs_slam_core.frame import Frame
+from sgs_slam_core.geometry.se3 import rotation_angle_deg
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.slam.features import (
     MAX_DISTANCE,
@@ -29,6 +30,7 @@ from sgs_slam_core.slam.features import (
     match_features,
     solve_motion,
 )
+from sgs_slam_core.slam.guard import FeatureEvidence
 
 __all__ = ["AGREEMENT_SLACK", "FeatureOdometry", "FeatureReference", "FeatureView"]
 
@@ -80,6 +82,14 @@ class FeatureView:
         slack = AGREEMENT_SLACK * threshold_px
         explained = agreement(self.reference.features, self.features, self.matches, ref_to_query, slack)
         return min(explained / max(self.motion.inliers, 1), 1.0)
+
+    def evidence(self, c2w: np.ndarray, threshold_px: float) -> FeatureEvidence | None:  # c2w [4, 4]
+        """What the feature pose says of ``c2w``: :meth:`agreement`, inliers, and the turn between them."""
+        explained, own = self.agreement(c2w, threshold_px), self.c2w
+        if explained is None or own is None:
+            return None
+        turn = float(rotation_angle_deg(own[:3, :3].T @ c2w[:3, :3]))
+        return FeatureEvidence(explained, self.inliers, turn)
 
     def landmarks(self, threshold_px: float) -> Landmarks | None:
         """The feature pose's inlier matches (within ``threshold_px``) as map-frame landmarks; None without one."""

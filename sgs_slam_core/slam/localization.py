@@ -19,7 +19,7 @@ from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.slam.feature_odometry import FeatureView
 from sgs_slam_core.slam.features import Landmarks
-from sgs_slam_core.slam.guard import TrackingGuard, TrackingState
+from sgs_slam_core.slam.guard import FeatureEvidence, TrackingGuard, TrackingState
 from sgs_slam_core.slam.keyframe_store import KeyframeStore
 from sgs_slam_core.slam.motion import MotionModel
 from sgs_slam_core.slam.relocalization import Relocalizer
@@ -157,12 +157,14 @@ class Localizer:
         """The inlier matches of the frame's feature pose, as landmarks for the tracker (None without one)."""
         return None if view is None else view.landmarks(self.config.features.reprojection_px)
 
-    def _evidence(self, result: TrackResult, view: FeatureView | None) -> tuple[float, float, float, float | None]:
-        """What the guard judges a tracked pose by: residual, loss per pixel, mapped fraction, feature agreement."""
-        agreement = None
+    def _evidence(
+        self, result: TrackResult, view: FeatureView | None
+    ) -> tuple[float, float, float, FeatureEvidence | None]:
+        """What the guard judges a tracked pose by: residual, loss per pixel, mapped fraction, the features' say."""
+        features = None
         if view is not None and np.isfinite(result.depth_residual_m):
-            agreement = view.agreement(np.linalg.inv(result.w2c), self.config.features.reprojection_px)
-        return result.depth_residual_m, result.loss_per_pixel, result.valid_fraction, agreement
+            features = view.evidence(np.linalg.inv(result.w2c), self.config.features.reprojection_px)
+        return result.depth_residual_m, result.loss_per_pixel, result.valid_fraction, features
 
     # ------------------------------------------------------------------ relocalization
     def _relocalized(

@@ -14,7 +14,7 @@ from sgs_slam_core.frame import CompactFrame
 from sgs_slam_core.geometry.se3 import rotation_angle_deg
 from sgs_slam_core.slam.feature_odometry import FeatureView
 from sgs_slam_core.slam.features import extract_features
-from sgs_slam_core.slam.guard import TrackingGuard
+from sgs_slam_core.slam.guard import FeatureEvidence, TrackingGuard
 from sgs_slam_core.slam.keyframe_store import KeyframeStore
 from sgs_slam_core.slam.relocalization import Relocalizer
 from sgs_slam_core.slam.system import Slam
@@ -37,12 +37,35 @@ def test_failures_in_a_row_lose_the_camera_until_it_is_relocalized():
     assert all(never.settle(True) == "ok" for _ in range(5))
 
 
+def features(agreement: float, inliers: int = 100, turn_deg: float = 0.5) -> FeatureEvidence:
+    return FeatureEvidence(agreement, inliers, turn_deg)
+
+
 def test_a_pose_the_features_contradict_fails():
     guard = TrackingGuard(GuardSettings(min_feature_agreement=0.5))
-    assert guard.check(0.01, 0.1, 0.8, agreement=0.9) is None
-    assert "30% of the matches" in guard.check(0.01, 0.1, 0.8, agreement=0.3)
-    assert guard.check(0.01, 0.1, 0.8, agreement=None) is None  # no feature pose: nothing to contradict
-    assert TrackingGuard(GuardSettings(min_feature_agreement=0.0)).check(0.01, 0.1, 0.8, agreement=0.0) is None
+    assert guard.check(0.01, 0.1, 0.8, features(0.9)) is None
+    assert "30% of the matches" in guard.check(0.01, 0.1, 0.8, features(0.3))
+    assert guard.check(0.01, 0.1, 0.8, None) is None  # no feature pose: nothing to contradict
+    assert TrackingGuard(GuardSettings(min_feature_agreement=0.0)).check(0.01, 0.1, 0.8, features(0.0)) is None
+
+
+def test_a_pose_turned_away_from_a_well_matched_feature_pose_fails_whatever_it_explains():
+    guard = TrackingGuard(GuardSettings(relocalize_min_inliers=30))
+    assert "turned 8.5 deg" in guard.check(0.01, 0.1, 0.8, features(0.95, turn_deg=8.5))
+    assert guard.check(0.01, 0.1, 0.8, features(0.95, turn_deg=2.0)) is None
+    assert guard.check(0.01, 0.1, 0.8, features(0.95, inliers=20, turn_deg=8.5)) is None  # too few matches to overrule
+
+
+def test_a_residual_jump_fails_a_pose_only_when_the_features_do_not_confirm_it():
+    settings = GuardSettings(warmup_frames=0, residual_jump=6.0, relocalize_min_inliers=30)
+    guard = TrackingGuard(settings)
+    for _ in range(5):
+        assert guard.check(0.015, 0.1, 0.8) is None
+    # the map is wrong where the camera looks (30 cm residual), but 100 matches agree with the pose
+    assert guard.judge(0.30, 0.1, 0.8, features(1.0)) is None
+    assert "depth residual 30.0 cm" in guard.judge(0.30, 0.1, 0.8, features(1.0, inliers=20))
+    assert "depth residual" in guard.judge(0.30, 0.1, 0.8, features(0.8))
+    assert "depth residual" in guard.judge(0.30, 0.1, 0.8)  # no feature pose: the jump decides
 
 
 def keyframe(i: int) -> CompactFrame:
