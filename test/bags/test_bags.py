@@ -238,7 +238,8 @@ def test_bag_player_lockstep_drives_slam_node(tiny_scene, tmp_path):
     from sgs_slam_ros.bag_player import BagPlayer
     from sgs_slam_ros.slam_node import build_slam_nodes
 
-    from ..ros.helpers import Spinner, new_context, node_params, shut_down, wait_for
+    from ..polling import wait_for
+    from ..ros.helpers import Spinner, new_context, node_params, shut_down
 
     bag = tmp_path / "bag"
     convert(open_dataset(tiny_scene), bag)

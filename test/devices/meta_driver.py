@@ -54,7 +54,8 @@ def nodes(scene: Path, work: Path) -> Callable[[], None]:
 
         from sgs_slam_core.datasets import open_dataset
         from sgs_slam_ros.slam_node import build_slam_nodes
-        from test.ros.helpers import Feeder, Spinner, new_context, node_params, shut_down, wait_for
+        from test.polling import wait_for
+        from test.ros.helpers import Feeder, Spinner, new_context, node_params, shut_down
 
         ds = open_dataset(scene)
         frames = [

@@ -41,7 +41,8 @@ def test_slam_node_on_cuda(tiny_scene, tmp_path):
     pytest.importorskip("rclpy", reason="the ROS 2 wheels are not installed")
     from sgs_slam_ros.slam_node import build_slam_nodes
 
-    from ..ros.helpers import Feeder, Spinner, new_context, node_params, shut_down, wait_for
+    from ..polling import wait_for
+    from ..ros.helpers import Feeder, Spinner, new_context, node_params, shut_down
 
     ds = open_dataset(tiny_scene)
     frames = [

@@ -22,16 +22,7 @@ from sgs_slam_core.slam.mapper import MapStats
 from sgs_slam_core.slam.system import MapOutcome, Slam, TrackOutcome
 
 from ..conftest import FAST_SLAM
-
-
-def _wait_until(predicate, timeout: float) -> bool:
-    """Poll ``predicate`` every 10 ms until it holds (True) or ``timeout`` seconds pass (False)."""
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.01)
-    return True
+from ..polling import wait_for
 
 
 class GatedSlam:
@@ -99,7 +90,7 @@ def test_frames_arriving_while_tracking_is_busy_replace_the_waiting_one():
     pipeline = SlamPipeline(slam, lockstep=False, log=lambda _: None)
     try:
         pipeline.submit_frame(SimpleNamespace(index=0))
-        assert _wait_until(lambda: pipeline._busy["track"], 5.0)  # frame 0 is being tracked
+        assert wait_for(lambda: pipeline._busy["track"], 5.0)  # frame 0 is being tracked
         for i in range(1, 6):  # 1..4 are replaced in turn, 5 waits
             pipeline.submit_frame(SimpleNamespace(index=i))
         for _ in range(2):
@@ -175,7 +166,7 @@ def test_live_tracking_is_told_when_a_newer_frame_waits(lockstep):
         slam.gate.release()
         assert pipeline.wait_idle(5.0)
         pipeline.submit_frame(SimpleNamespace(index=1))
-        assert _wait_until(lambda: len(slam.asks) >= 2, 5.0)  # frame 1 is being tracked
+        assert wait_for(lambda: len(slam.asks) >= 2, 5.0)  # frame 1 is being tracked
         ask = slam.asks[-1]
         if lockstep:  # every frame is kept, so tracking never ends early
             assert ask is None
@@ -217,7 +208,7 @@ def test_shutdown_stops_mapping_at_its_next_step(lockstep):
     slam = SlowMappingSlam()
     pipeline = SlamPipeline(slam, lockstep=lockstep, log=lambda _: None)
     pipeline.submit_frame(SimpleNamespace(index=0))
-    assert _wait_until(lambda: slam.steps >= 3, 5.0)
+    assert wait_for(lambda: slam.steps >= 3, 5.0)
     started = time.monotonic()
     pipeline.shutdown(timeout=10.0)
     assert time.monotonic() - started < 2.0 and slam.steps < 200
@@ -231,7 +222,7 @@ def test_finishing_ends_the_mapping_job_at_its_next_step_and_keeps_its_frame():
     pipeline = SlamPipeline(slam, lockstep=False, log=lambda _: None)
     try:
         pipeline.submit_frame(SimpleNamespace(index=0))
-        assert _wait_until(lambda: slam.steps >= 3, 5.0)
+        assert wait_for(lambda: slam.steps >= 3, 5.0)
         started = time.monotonic()
         assert pipeline.finish(10.0)
         assert time.monotonic() - started < 2.0 and slam.steps < 200

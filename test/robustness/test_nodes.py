@@ -18,7 +18,8 @@ from sgs_slam_core.datasets import open_dataset
 from sgs_slam_ros.messages import camera_info_msg, header, image_msg
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from ..ros.helpers import FAST, Feeder, Spinner, new_context, node_params, shut_down, wait_for
+from ..polling import wait_for
+from ..ros.helpers import FAST, Feeder, Spinner, new_context, node_params, shut_down
 
 pytestmark = pytest.mark.ros
 CAM = "camera_color_optical_frame"

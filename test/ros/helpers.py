@@ -5,8 +5,6 @@ from __future__ import annotations
 import dataclasses
 import random
 import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -66,15 +64,6 @@ def diagnostics_of(arrays: list, node: str) -> list[tuple[int, str, dict[str, st
         for s in a.status
         if s.name.endswith(node)
     ]
-
-
-def wait_for(predicate: Callable[[], bool], timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > end:
-            return False
-        time.sleep(0.02)
-    return True
 
 
 class Spinner:

@@ -9,7 +9,8 @@ from std_srvs.srv import Trigger
 from sgs_slam_ros.runtime import EXECUTORS, POLL_S, make_executor
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Feeder, new_context, node_params, shut_down, tiny_frames, wait_for
+from ..polling import wait_for
+from .helpers import Feeder, new_context, node_params, shut_down, tiny_frames
 
 pytestmark = pytest.mark.ros
 

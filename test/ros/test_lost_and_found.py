@@ -4,8 +4,9 @@ import dataclasses
 
 import pytest
 
+from ..polling import wait_for
 from ..slam.views import room_frame
-from .helpers import FAST, diagnostics_of, node_params, wait_for, watched_slam
+from .helpers import FAST, diagnostics_of, node_params, watched_slam
 
 pytestmark = pytest.mark.ros
 PERIOD = 33_333_333  # ns

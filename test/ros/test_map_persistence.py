@@ -15,9 +15,10 @@ from msg_adapters import pose_to_c2w
 from sgs_slam_core.mapio import load_map
 from sgs_slam_core.metrics import ate
 
+from ..polling import wait_for
 from ..robustness.fakefs import make_read_only
 from ..slam.views import room_frame
-from .helpers import FAST, Feeder, Spinner, diagnostics_of, new_context, node_params, wait_for, watched_slam
+from .helpers import FAST, Feeder, Spinner, diagnostics_of, new_context, node_params, watched_slam
 from .test_two_processes import start
 
 pytestmark = pytest.mark.ros

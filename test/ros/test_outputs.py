@@ -8,7 +8,8 @@ from msg_adapters import stamp_to_ns
 from sgs_slam_ros.qos import latched_qos
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, tiny_frames, wait_for
+from ..polling import wait_for
+from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, tiny_frames
 
 pytestmark = pytest.mark.ros
 CAM = "rig_color_optical_frame"

@@ -15,7 +15,8 @@ from sensor_msgs.msg import Image
 from sgs_slam_ros.params import COMMON, EDIT, MAPPING, TRACKING
 from sgs_slam_ros.slam_node import build_slam_nodes, main
 
-from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames, wait_for
+from ..polling import wait_for
+from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames
 
 pytestmark = pytest.mark.ros
 

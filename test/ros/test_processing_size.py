@@ -11,7 +11,8 @@ from sgs_slam_ros.frames import FrameAssembler
 from sgs_slam_ros.messages import camera_info_msg, image_msg
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, tiny_frames, wait_for
+from ..polling import wait_for
+from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, tiny_frames
 
 pytestmark = pytest.mark.ros
 

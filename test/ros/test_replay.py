@@ -15,7 +15,8 @@ from sgs_slam_core.datasets import open_dataset
 from sgs_slam_ros.bag_player import RESET_SERVICES, BagPlayer
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Spinner, diagnostics_of, new_context, node_params, shut_down, wait_for
+from ..polling import wait_for
+from .helpers import Spinner, diagnostics_of, new_context, node_params, shut_down
 
 pytestmark = pytest.mark.ros
 

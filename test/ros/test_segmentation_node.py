@@ -17,7 +17,8 @@ from sgs_slam_ros.qos import latched_qos
 from sgs_slam_ros.segmentation_node import SegmentationNode
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames, wait_for
+from ..polling import wait_for
+from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames
 
 pytestmark = pytest.mark.ros
 

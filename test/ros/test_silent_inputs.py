@@ -10,7 +10,8 @@ from rclpy.parameter import Parameter
 
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, tiny_frames, wait_for
+from ..polling import wait_for
+from .helpers import Feeder, Spinner, diagnostics_of, new_context, node_params, shut_down, tiny_frames
 
 pytestmark = pytest.mark.ros
 OK, WARN = 0, 1

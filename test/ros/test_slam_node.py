@@ -13,7 +13,8 @@ from msg_adapters import image_to_numpy, pointcloud_to_numpy, pose_to_c2w
 from sgs_slam_core.metrics import ate
 from sgs_slam_ros.slam_node import build_slam_nodes
 
-from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames, wait_for
+from ..polling import wait_for
+from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames
 
 pytestmark = pytest.mark.ros
 

@@ -11,7 +11,8 @@ from sgs_slam_core.geometry.gravity import pose_from_xyz_rpy
 from sgs_slam_ros.slam_node import build_slam_nodes
 from sgs_slam_ros.tf import TF_QOS, TF_STATIC_QOS
 
-from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames, wait_for
+from ..polling import wait_for
+from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames
 
 pytestmark = pytest.mark.ros
 

@@ -23,7 +23,8 @@ from sgs_slam_ros.transport import (
     socket_buffer_advice,
 )
 
-from .helpers import FAST, Spinner, diagnostics_of, new_context, wait_for
+from ..polling import wait_for
+from .helpers import FAST, Spinner, diagnostics_of, new_context
 
 pytestmark = pytest.mark.ros
 FRAMES, MARKERS, PERIOD = 60, 5, 33_333_333  # 2 s at 30 Hz, then a few frames that close the stream

@@ -14,7 +14,8 @@ from sensor_msgs.msg import PointCloud2
 from bags import convert
 from sgs_slam_core.datasets import open_dataset
 
-from .helpers import FAST, Feeder, Spinner, new_context, wait_for
+from ..polling import wait_for
+from .helpers import FAST, Feeder, Spinner, new_context
 
 pytestmark = pytest.mark.ros
 
