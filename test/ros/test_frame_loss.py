@@ -10,6 +10,7 @@ from rcl_interfaces.msg import Log
 
 from sgs_slam_ros.slam_node import build_slam_nodes
 
+from ..polling import wait_for
 from .helpers import (
     FAST,
     Feeder,
@@ -19,7 +20,6 @@ from .helpers import (
     node_params,
     shut_down,
     tiny_frames,
-    wait_for,
     watched_slam,
 )
 
