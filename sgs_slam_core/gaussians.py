@@ -35,8 +35,11 @@ class GaussianMap:
     labels: Tensor  # [N] int64 class id (0 = unlabelled), not optimised
     birth_frame: Tensor  # [N] int64 frame index at which the Gaussian was added
     quats: Tensor | None = None  # [N, 4] wxyz, anisotropic maps only
+    label_weight: Tensor | None = None  # [N] float32 views' net agreement with ``labels`` (votes); None: zeros
 
     def __post_init__(self) -> None:
+        if self.label_weight is None:  # maps saved without votes, and code that never casts any
+            object.__setattr__(self, "label_weight", torch.zeros(self.means.shape[0], device=self.means.device))
         self.validate()
 
     # ------------------------------------------------------------------ construction
@@ -70,6 +73,7 @@ class GaussianMap:
             "colors": (n, 3),
             "labels": (n,),
             "birth_frame": (n,),
+            "label_weight": (n,),
         }
         for name, shape in expected.items():
             got = tuple(getattr(self, name).shape)
@@ -186,9 +190,10 @@ class GaussianMap:
     @staticmethod
     def from_state_dict(state: dict[str, Tensor], device: torch.device | str = "cpu") -> GaussianMap:
         """Inverse of :meth:`state_dict`; missing or unknown fields raise :class:`ShapeError`."""
-        required = {f.name for f in fields(GaussianMap)} - {"quats"}
+        optional = {"quats", "label_weight"}
+        required = {f.name for f in fields(GaussianMap)} - optional
         missing = required - state.keys()
-        unknown = state.keys() - required - {"quats"}
+        unknown = state.keys() - required - optional
         if missing or unknown:
             raise ShapeError(f"bad Gaussian state: missing {sorted(missing)}, unknown {sorted(unknown)}")
         return GaussianMap(**{k: v.to(device) for k, v in state.items()})

@@ -19,9 +19,10 @@ from torch import Tensor
 from sgs_slam_core.errors import ConfigError, FrameError, ShapeError
 from sgs_slam_core.labels import LabelTable
 
-__all__ = ["SemanticCodec", "SemanticMode", "SemanticSettings"]
+__all__ = ["SemanticCodec", "SemanticFusion", "SemanticMode", "SemanticSettings"]
 
 SemanticMode = Literal["color", "onehot"]
+SemanticFusion = Literal["regression", "votes"]
 _DECODE_ELEMENTS = 1 << 24  # float32 distances per decoding chunk, whatever the number of classes
 _PALETTE_IDS = 1 << 16  # ids below this encode by a lookup in a cached palette (uint16 labels all do)
 
@@ -33,14 +34,22 @@ class SemanticSettings:
     Attributes:
         mode: ``color`` (S = 3) or ``onehot`` (S = num_classes).
         num_classes: one-hot channels, covering class ids 0 .. num_classes - 1 (ignored in colour mode).
+        fusion: how the label images make a Gaussian's class. ``regression`` (the paper): its semantic
+            features are optimised with the map against each window's labels, the class decoded from
+            them. ``votes``: each labelled view votes the class its centre falls on, the majority
+            is the class, and the features are that class's target (the segmenter's flicker in a
+            few views does not move it).
     """
 
     mode: SemanticMode = "color"
     num_classes: int = 41
+    fusion: SemanticFusion = "regression"
 
     def __post_init__(self) -> None:
         if self.mode not in ("color", "onehot"):
             raise ConfigError(f"semantic.mode must be color or onehot, got {self.mode!r}")
+        if self.fusion not in ("regression", "votes"):
+            raise ConfigError(f"semantic.fusion must be regression or votes, got {self.fusion!r}")
         if self.mode == "onehot" and not 2 <= self.num_classes <= 512:
             raise ConfigError(f"semantic.num_classes must be in [2, 512] for onehot, got {self.num_classes}")
 

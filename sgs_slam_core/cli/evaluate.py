@@ -22,7 +22,7 @@ __all__ = ["add_parser", "run"]
 
 _KEEP = ("fps", "track_ms_per_frame", "map_ms_per_frame", "load_ms_per_frame", "peak_memory_mb",
          "tracking_failures", "bad_frames", "keyframes", "keyframe_mb", "keyframes_evicted", "gaussian_mb", "device",
-         "render_backend")  # fmt: skip
+         "render_backend", "input_miou")  # fmt: skip
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

@@ -6,10 +6,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from sgs_slam_core.cli.args import FloatRange, IntRange
+from sgs_slam_core.cli.args import MAX_SEED, FloatRange, IntRange
 from sgs_slam_core.cli.viewer_args import add_viewer_arguments, start_viewer, viewer_options_from_args
 from sgs_slam_core.config import list_presets, load_config
 from sgs_slam_core.datasets import Dataset, DatasetOptions, dataset_format, formats, open_dataset
+from sgs_slam_core.datasets.label_noise import LABEL_NOISE_LEVELS, NoisyLabels
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.runner import format_table, run_offline
 from sgs_slam_core.runner.label_stream import LabelStream
@@ -76,6 +77,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="with --realtime: each label image comes MS after its frame (0..60000, default 0; implies the "
         "labels' own stream, at every frame's when --label-rate-hz is not given)",
     )
+    p.add_argument(
+        "--label-noise",
+        choices=list(LABEL_NOISE_LEVELS),
+        help="feed the labels degraded as a segmenter degrades them (regions flickering to another class, "
+        "classes confused, boundaries bled, frames unlabelled) and score the map against the true labels",
+    )
+    p.add_argument(
+        "--label-noise-seed",
+        type=IntRange(0, MAX_SEED),
+        default=0,
+        metavar="N",
+        help="with --label-noise: the seed its mistakes are drawn from (default %(default)s)",
+    )
     add_viewer_arguments(p)
     p.set_defaults(func=run)
 
@@ -131,6 +145,15 @@ def default_preset(path: Path, fmt: str) -> str:
     return dataset_format(path, fmt).preset(path)
 
 
+def _with_label_noise(dataset: Dataset, level: str | None, seed: int) -> Dataset:
+    """``dataset`` feeding its labels degraded at the named level (itself without a level)."""
+    if level is None:
+        return dataset
+    if not dataset.has_labels:
+        raise DatasetError(f"--label-noise needs a dataset with label images; {dataset.name} has none")
+    return NoisyLabels(dataset, LABEL_NOISE_LEVELS[level], seed)
+
+
 def run(args: argparse.Namespace) -> int:
     """Open the dataset, resolve the config, run and print the metrics table."""
     check_run_dir(args.out, args.overwrite)
@@ -142,7 +165,8 @@ def run(args: argparse.Namespace) -> int:
     viewer_options = viewer_options_from_args(args)
     options = DatasetOptions(start=args.start, stride=args.stride, max_frames=args.max_frames, downscale=args.downscale)
     topics = parse_topics(args.topics)
-    dataset = open_input(args.input, args.format, options, topics)
+    truth = open_input(args.input, args.format, options, topics)
+    dataset = _with_label_noise(truth, args.label_noise, args.label_noise_seed)
     print(
         f"{dataset.name}: {len(dataset)} frames at {dataset.intrinsics.width}x{dataset.intrinsics.height}, "
         f"preset {preset}, device {config.device}",
@@ -165,6 +189,8 @@ def run(args: argparse.Namespace) -> int:
         "realtime": args.realtime,
         "label_rate_hz": args.label_rate_hz,
         "label_delay_ms": args.label_delay_ms,
+        "label_noise": args.label_noise,
+        "label_noise_seed": args.label_noise_seed if args.label_noise else None,
     }
     realtime = None
     separate_labels = args.label_rate_hz is not None or args.label_delay_ms is not None
@@ -183,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
         show_progress=not args.quiet,
         realtime=realtime,
         viewer=viewer,
+        truth=truth if dataset is not truth else None,
     )
     print(format_table(result.metrics))
     print(f"run folder: {args.out}")

@@ -36,7 +36,7 @@ from sgs_slam_core.render.settings import RenderSettings
 from sgs_slam_core.semantics import SemanticCodec
 from sgs_slam_core.viz import RenderPanel, plot_trajectory, save_render_panels
 
-__all__ = ["EvalOptions", "eval_indices", "evaluate", "trajectory_metrics"]
+__all__ = ["EvalOptions", "eval_indices", "evaluate", "input_miou", "trajectory_metrics"]
 
 
 @dataclass(frozen=True)
@@ -142,6 +142,21 @@ def _plot(
         )
 
 
+def input_miou(fed: Dataset, truth: Dataset, every: int) -> float | None:
+    """The mIoU of ``fed``'s label images against ``truth``'s, over frame 0 and every ``every``-th frame that has one.
+
+    Every run of a sequence scores the same frames, whichever it tracked. None without labels.
+    """
+    scores = ConfusionMatrix()
+    for i in eval_indices(len(truth), every):
+        fed_labels = fed[i].labels
+        if fed_labels is not None:
+            true_labels = truth[i].labels
+            if true_labels is not None:
+                scores.update(fed_labels, true_labels)
+    return scores.miou() if scores.total > 0 else None
+
+
 def evaluate(
     dataset: Dataset,
     frame_indices: list[int],  # dataset index of every processed frame, in order
@@ -152,8 +167,14 @@ def evaluate(
     render_settings: RenderSettings,
     options: EvalOptions,
     progress: Callable[[int, int], None] | None = None,
+    fed: Dataset | None = None,
 ) -> dict[str, Any]:
-    """Compute every metric of ``metrics.json`` that depends on the map and trajectory."""
+    """Compute every metric of ``metrics.json`` that depends on the map and trajectory.
+
+    ``dataset`` holds the truth the map is scored against. ``fed``: the same frames as they went in
+    when their labels were not the truth (``--label-noise``); their label images are scored against
+    the truth too (``input_miou``, :func:`input_miou`).
+    """
     with_gt = []  # (estimate, ground truth, stamp_ns) of frames with ground truth
     stamps = dataset.stamps_ns
     for i, p in zip(frame_indices, poses, strict=True):
@@ -191,6 +212,8 @@ def evaluate(
         if progress:
             progress(n + 1, len(chosen))
     metrics.update(scores.summary(), eval_frames=len(chosen))
+    if fed is not None:
+        metrics["input_miou"] = input_miou(fed, dataset, options.eval_every)
     if options.out_dir is not None and len(poses) >= 2:
         _plot(options.out_dir / "trajectory.png", poses, est, gt, gt_stamps, metrics["ate_rmse_m"])
     return metrics

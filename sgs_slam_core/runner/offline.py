@@ -302,11 +302,21 @@ def _track_and_map(
     return slam, loop
 
 
-def _evaluate(dataset: Dataset, slam: Slam, loop: _Loop, config: SlamConfig, options: EvalOptions) -> dict[str, Any]:
-    """The run's metrics: trajectory against ground truth, and the map's renders against the input."""
+def _evaluate(
+    dataset: Dataset, truth: Dataset | None, slam: Slam, loop: _Loop, config: SlamConfig, options: EvalOptions
+) -> dict[str, Any]:
+    """The run's metrics: trajectory against ground truth, and the map's renders against the input (or ``truth``)."""
     candidates = slam.label_candidates()
     return evaluate(
-        dataset, loop.frame_indices, loop.poses, slam.gaussians, slam.codec, candidates, config.render, options
+        truth or dataset,
+        loop.frame_indices,
+        loop.poses,
+        slam.gaussians,
+        slam.codec,
+        candidates,
+        config.render,
+        options,
+        fed=dataset if truth is not None else None,
     )
 
 
@@ -320,12 +330,15 @@ def run_offline(
     render_examples: int = 4,
     realtime: RealtimeOptions | None = None,
     viewer: Viewer | None = None,
+    truth: Dataset | None = None,
 ) -> RunResult:
     """Process every frame, save the outputs, evaluate, and return the metrics.
 
     ``realtime``: release the frames at their stamps (or a rate) into the live pipeline instead of
     processing every frame in lockstep; metrics and ATE then cover the frames it kept up with.
     ``viewer`` (see :func:`sgs_slam_core.viz.open_viewer`) receives every processed frame live.
+    ``truth``: the frames the map is scored against when ``dataset`` feeds other labels
+    (:class:`~sgs_slam_core.datasets.label_noise.NoisyLabels`); default ``dataset``.
 
     The results (trajectory, frames.csv, maps) are written before the evaluation, so a failing
     evaluation (raised as :class:`EvaluationError`) never loses them. The first Ctrl-C stops after
@@ -348,7 +361,8 @@ def run_offline(
         write_run_info(out / "run.yaml", provenance, "interrupted", note, **done)
         raise RunInterrupted(f"{note}; run folder: {out}")
     try:
-        metrics = _evaluate(dataset, slam, loop, config, EvalOptions(config.eval_every, render_examples, out))
+        options = EvalOptions(config.eval_every, render_examples, out)
+        metrics = _evaluate(dataset, truth, slam, loop, config, options)
     except KeyboardInterrupt:
         note = f"evaluation interrupted by Ctrl-C; the results are complete (run: sgs-slam eval {out})"
         write_metrics(out / "metrics.json", {**stats, "evaluation": "interrupted"})

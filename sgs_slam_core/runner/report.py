@@ -34,6 +34,7 @@ METRIC_ROWS: tuple[tuple[str, str, float, str], ...] = (
     ("miou", "mIoU (standard)", 100, "{:.2f}"),
     ("miou_paper", "mIoU (SGS-SLAM protocol)", 100, "{:.2f}"),
     ("pixel_accuracy", "semantic pixel accuracy (%)", 100, "{:.2f}"),
+    ("input_miou", "mIoU of the label images fed in (--label-noise)", 100, "{:.2f}"),
     ("fps", "FPS (tracking + mapping)", 1, "{:.3f}"),
     ("track_ms_per_frame", "tracking (ms/frame)", 1, "{:.0f}"),
     ("map_ms_per_frame", "mapping (ms/frame)", 1, "{:.0f}"),

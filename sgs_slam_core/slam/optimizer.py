@@ -25,7 +25,7 @@ class GaussianOptimizer:
     def __init__(
         self, gaussians: GaussianMap, settings: MappingSettings, frozen_labels: frozenset[int] = frozenset()
     ) -> None:
-        self._labels, self._birth = gaussians.labels, gaussians.birth_frame
+        self._labels, self._birth, self._weight = gaussians.labels, gaussians.birth_frame, gaussians.label_weight
         self._frozen_ids = torch.tensor(sorted(frozen_labels), dtype=torch.int64, device=gaussians.device)
         lrs = {
             "means": settings.lr_means,
@@ -42,7 +42,7 @@ class GaussianOptimizer:
 
     def gaussians(self) -> GaussianMap:
         """The map built on the live parameters (differentiable)."""
-        return GaussianMap(labels=self._labels, birth_frame=self._birth, **self.params)
+        return GaussianMap(labels=self._labels, birth_frame=self._birth, label_weight=self._weight, **self.params)
 
     def result(self) -> GaussianMap:
         """The optimised map, detached."""
@@ -96,4 +96,5 @@ class GaussianOptimizer:
         for name in self.names:
             self.adam.replace(name, self.params[name].detach().index_select(0, rows).requires_grad_(True), rows)
         self._labels, self._birth = self._labels.index_select(0, rows), self._birth.index_select(0, rows)
+        self._weight = self._weight.index_select(0, rows)
         return removed

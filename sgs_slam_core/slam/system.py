@@ -35,6 +35,7 @@ from sgs_slam_core.slam.guard import TrackingGuard, TrackingState
 from sgs_slam_core.slam.heap import keep_freed_heap, release_free_heap
 from sgs_slam_core.slam.keyframe_store import KeyframeStore
 from sgs_slam_core.slam.keyframes import is_keyframe
+from sgs_slam_core.slam.label_votes import cast_votes, seen_classes
 from sgs_slam_core.slam.late_labels import label_unlabelled
 from sgs_slam_core.slam.localization import Localizer
 from sgs_slam_core.slam.map_frame import MapFrameChoice, MapFramePolicy
@@ -43,6 +44,11 @@ from sgs_slam_core.slam.motion import MotionModel
 from sgs_slam_core.slam.outcomes import MapOutcome, StepResult, TrackOutcome
 from sgs_slam_core.slam.trackers import build_tracker
 from sgs_slam_core.slam.window import choose_window, upload_window
+
+# A Gaussian's features are reset to its voted class only once the votes for it lead by this many:
+# a splat on a class boundary, whose centre falls on either side from view to view, keeps the
+# features its windows gave it.
+_CONFIDENT_VOTES = 2.0
 
 __all__ = ["MapOutcome", "Slam", "StepResult", "TrackOutcome", "resolve_device"]
 
@@ -231,6 +237,8 @@ class Slam:
             # keyframes whose labels came late supervise the semantics of a frame that has none (yet)
             use_sem = use_sem or any(wf.has_semantic for wf in frames)
             gaussians, stats = self._optimised(gaussians, frames, use_sem, between_iterations)
+        if self.votes and frame.labels is not None:
+            gaussians = self._voted(gaussians, data, np.linalg.inv(tracked.c2w))
         keyframe = self._keyframe_due(tracked.index)
         gaussians, stale = self._labelled(gaussians, use_sem, keyframe)
         if before_publish is not None:
@@ -264,8 +272,11 @@ class Slam:
         frame = Frame(view.rgb, view.depth_m, view.intrinsics, labels, view.stamp_ns, None, view.index)
         self._see_labels(frame)
         data = self._frame_tensors(frame, view.index)
-        w2c = torch.as_tensor(view.w2c, dtype=torch.float32, device=self.device)
-        gaussians, _ = label_unlabelled(self.gaussians, data, w2c)
+        if self.votes:
+            gaussians = self._voted(self.gaussians, data, view.w2c)
+        else:
+            w2c = torch.as_tensor(view.w2c, dtype=torch.float32, device=self.device)
+            gaussians, _ = label_unlabelled(self.gaussians, data, w2c)
         keyframe = self.keyframes.attach_labels(view.index, labels)
         if not keyframe and not self.keyframes.labelled_near(view.index, self.config.keyframes.every):
             # labels come rarer than keyframes: a labelled view supervises later windows' semantics
@@ -441,23 +452,51 @@ class Slam:
         stored = Frame(frame.rgb, frame.depth, frame.intrinsics, frame.labels, frame.stamp_ns, None, tracked.index)
         self.keyframes.add(CompactFrame.from_frame(stored, np.linalg.inv(tracked.c2w)))
 
+    @property
+    def votes(self) -> bool:
+        """Whether classes are the labelled views' majority (``semantic.fusion: votes``)."""
+        return self.config.semantic.fusion == "votes"
+
+    def _voted(self, gaussians: GaussianMap, data: FrameTensors, w2c: np.ndarray) -> GaussianMap:
+        """``gaussians`` with the classes of the labelled view ``data`` (seen from ``w2c`` [4, 4]) voted in."""
+        rows, classes, _ = seen_classes(gaussians, data, torch.as_tensor(w2c, dtype=torch.float32, device=self.device))
+        locked = torch.tensor(sorted(self.locked_labels), dtype=torch.int64, device=self.device)
+        return cast_votes(gaussians, rows, classes, locked)
+
+    def _snapped(self, gaussians: GaussianMap) -> GaussianMap:
+        """Labelled Gaussians whose features decode to another class than their votes' reset to that class's target.
+
+        Features that agree with the votes are kept: optimised against the windows, they shade a
+        class boundary inside a splat better than the class target would.
+        """
+        if not len(gaussians):
+            return gaussians
+        decoded = self.codec.decode(gaussians.semantics, self.label_candidates()).to(self.device)
+        wrong = (gaussians.labels > 0) & (decoded != gaussians.labels) & (gaussians.label_weight >= _CONFIDENT_VOTES)
+        targets = self.codec.encode(gaussians.labels).to(gaussians.semantics)  # [N, S]
+        return gaussians.with_tensors(semantics=torch.where(wrong[:, None], targets, gaussians.semantics))
+
     def _labelled(self, gaussians: GaussianMap, use_semantics: bool, keyframe: bool) -> tuple[GaussianMap, bool]:
-        """``gaussians`` with their classes re-decoded where due (``mapping.refresh_labels*``); still stale?"""
+        """``gaussians`` with classes and features made to agree where due (``mapping.refresh_labels*``); stale?"""
         m = self.config.mapping
         if not (m.refresh_labels and use_semantics):
             return gaussians, self._labels_stale
         if m.refresh_labels_keyframes_only and not keyframe:
             return gaussians, True
-        return self._refreshed_labels(gaussians), False
+        return self._agreed(gaussians), False
 
     def refresh_labels(self) -> None:
-        """Re-decode every Gaussian's class now where frames were mapped since the last re-decoding.
+        """Make classes and semantic features agree now where frames were mapped since they last did.
 
-        With ``mapping.refresh_labels_keyframes_only`` (live runs) the classes are as of the last
-        keyframe; a run's end and a saved map call this.
+        Regression re-decodes each Gaussian's class from its features; votes reset the features of
+        a Gaussian its votes confidently give another class. With ``mapping.refresh_labels_keyframes_only``
+        (live runs) that is done at keyframes only; a run's end and a saved map call this.
         """
         if self._labels_stale:
-            self.gaussians, self._labels_stale = self._refreshed_labels(self.gaussians), False
+            self.gaussians, self._labels_stale = self._agreed(self.gaussians), False
+
+    def _agreed(self, gaussians: GaussianMap) -> GaussianMap:
+        return self._snapped(gaussians) if self.votes else self._refreshed_labels(gaussians)
 
     def _refreshed_labels(self, gaussians: GaussianMap) -> GaussianMap:
         """Each Gaussian's class decoded again from its semantic features (locked classes neither gain nor lose)."""
