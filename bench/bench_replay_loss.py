@@ -33,7 +33,7 @@ from sgs_slam_ros.stream_gaps import StreamGaps
 
 REMAPS = ("rgb/image:=/camera/color/image_raw", "depth/image:=/camera/depth/image_raw",
           "rgb/camera_info:=/camera/color/camera_info", "semantic/image:=/camera/semantic/image_raw")  # fmt: skip
-_COUNT = re.compile(r"(frames_\w+) (\d+)")
+_COUNT = re.compile(r"(\w+) (\d+)(?=,|$)")  # integer counts only: "frames_in 573, labels_fused 20"
 _STEPS = re.compile(r"mapping_steps_per_frame ([\d.]+)")
 
 
@@ -59,16 +59,25 @@ def replay(
     params: tuple[str, ...] = (),
     domain: int | None = None,
     before_play: Callable[[], None] | None = None,
+    remaps: tuple[str, ...] = REMAPS,
+    side_node: tuple[str, ...] = (),
 ) -> dict[str, float]:
     """One replay on DDS domain ``domain`` (default: a random one); the node's final counts and the frames sent.
 
-    ``params``: more ``NAME:=VALUE`` parameters of the node; ``before_play`` is called once the node
-    is started (e.g. to wait until it spins).
+    ``params``: more ``NAME:=VALUE`` parameters of the node; ``remaps``: its topic remaps;
+    ``before_play`` is called once the node is started (e.g. to wait until it spins). ``side_node``:
+    the ``python -m`` arguments of another node run beside it (e.g. ``segmentation_node``), stopped
+    with it; its final counts come back prefixed ``side_``.
     """
     domain = random.randint(1, 100) if domain is None else domain
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
     env.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
+    side = None
+    if side_node:
+        side = subprocess.Popen(
+            [sys.executable, "-m", *side_node], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        )
     node = subprocess.Popen(
         [
             sys.executable,
@@ -86,7 +95,7 @@ def replay(
             "-p",
             "save_on_shutdown:=false",  # a benchmark's map is not kept
             *(a for param in params for a in ("-p", param)),
-            *(a for r in REMAPS for a in ("-r", r)),
+            *(a for r in remaps for a in ("-r", r)),
         ],
         env=env,
         stdout=subprocess.PIPE,
@@ -104,7 +113,15 @@ def replay(
     )
     time.sleep(3.0)  # the last frames' callbacks
     node.send_signal(signal.SIGINT)
-    return final_counts(node.communicate(timeout=300)[0], player.stderr)
+    counts = final_counts(node.communicate(timeout=300)[0], player.stderr)
+    if side is not None:
+        side.send_signal(signal.SIGINT)
+        side_log = side.communicate(timeout=120)[0]
+        final = [line for line in side_log.splitlines() if "final counts:" in line]
+        if not final:
+            raise RuntimeError(f"no counts from {side_node[0]}: {side_log[-1500:]}")
+        counts.update({f"side_{k}": int(v) for k, v in _COUNT.findall(final[-1])})
+    return counts
 
 
 def final_counts(node_log: str, player_log: str) -> dict[str, float]:

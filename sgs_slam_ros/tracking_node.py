@@ -314,6 +314,10 @@ class TrackingNode(Node):
         if self.pipeline.map_enabled:  # slam_node: this process maps too
             counts["frames_mapped"] = str(st.mapped)
             counts["mapping_steps_per_frame"] = f"{st.map_steps_per_frame:.1f}"
+            if self.params["use_semantics"]:
+                counts["labels_in"] = str(st.labels.labels_in)
+                counts["labels_fused"] = str(st.labels.labels_fused)
+                counts["labels_unmatched"] = str(st.labels.labels_unmatched)
         self.get_logger().info("final counts: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
 
 

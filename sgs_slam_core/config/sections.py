@@ -311,7 +311,8 @@ class MappingSettings:
             the reference): over thousands of steps on revisited views the splats otherwise keep
             growing, and every render with them. Off by default because on coarse images a bound
             also narrows splats the map needs (1.5 px loses accuracy at 160x120).
-        refresh_labels: after mapping, set every Gaussian's class id from its semantic features.
+        refresh_labels: after mapping, set every Gaussian's class id from its semantic features
+            (``semantic.fusion: votes``: reset the features of Gaussians the votes give another class).
         refresh_labels_keyframes_only: only after mapping a frame that becomes a keyframe (live runs:
             ``live.refresh_labels_keyframes_only``). The Gaussians a frame adds take their class from
             its labels either way; older ones follow within ``keyframes.every`` frames.

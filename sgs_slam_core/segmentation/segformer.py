@@ -10,15 +10,17 @@ saved with ``save_pretrained``. ``transformers`` is an optional extra (``pip ins
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import torch
 
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.segmentation.ade20k import ADE20K_CLASSES, ade20k_to_nyu40_lut
 
-__all__ = ["DEFAULT_MODEL", "SegmentationError", "Segmenter"]
+__all__ = ["DEFAULT_MODEL", "MIN_SIDE_PX", "SegmentationError", "Segmenter"]
 
 DEFAULT_MODEL = "nvidia/segformer-b0-finetuned-ade-512-512"
+MIN_SIDE_PX = 32  # SegFormer's smallest input: its four stages stride the image down 32 times
 _MEAN = (0.485, 0.456, 0.406)  # ImageNet statistics, as SegFormer's image processor normalises
 _STD = (0.229, 0.224, 0.225)
 
@@ -77,16 +79,31 @@ class Segmenter:
         return cls(model, torch.device(device), "segformer-b0 (random weights)")
 
     @torch.inference_mode()
-    def ade20k_classes(self, rgb: np.ndarray) -> torch.Tensor:  # rgb [H, W, 3] uint8 -> [H, W] int64
-        """The model's ADE20K class index of every pixel (logits upsampled to the image size)."""
+    def ade20k_classes(self, rgb: np.ndarray, downscale: float = 1.0) -> torch.Tensor:  # [H, W, 3] uint8 -> [H, W]
+        """The model's ADE20K class index (int64) of every pixel; the model sees the image ``downscale`` x smaller.
+
+        The logits are upsampled to the image's size either way, so a smaller input costs detail at
+        class boundaries, not pixels: the model's time falls with the pixels it sees. The model's
+        input keeps at least ``MIN_SIDE_PX`` a side (a larger ``downscale`` is reduced to that).
+        """
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise SegmentationError(f"expected an HxWx3 uint8 colour image, got {rgb.shape} {rgb.dtype}")
-        x = torch.from_numpy(np.ascontiguousarray(rgb)).to(self.device).permute(2, 0, 1).float() / 255.0
-        x = ((x - self._mean) / self._std).unsqueeze(0)  # [1, 3, H, W]
-        logits = self.model(pixel_values=x).logits  # [1, 150, H/4, W/4]
+        if not 1.0 <= downscale <= 16.0:
+            raise SegmentationError(f"downscale must be in [1, 16], got {downscale}")
+        h, w = rgb.shape[:2]
+        if min(h, w) < MIN_SIDE_PX:
+            raise SegmentationError(f"a {w}x{h} image is too small for SegFormer (at least {MIN_SIDE_PX} px a side)")
+        seen = rgb
+        downscale = min(downscale, min(h, w) / MIN_SIDE_PX)  # the model's smallest input, not an error
+        if downscale > 1.0:
+            size = (max(MIN_SIDE_PX, round(w / downscale)), max(MIN_SIDE_PX, round(h / downscale)))
+            seen = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+        x = torch.from_numpy(np.ascontiguousarray(seen)).to(self.device).permute(2, 0, 1).float() / 255.0
+        x = ((x - self._mean) / self._std).unsqueeze(0)  # [1, 3, h, w]
+        logits = self.model(pixel_values=x).logits  # [1, 150, h/4, w/4]
         up = torch.nn.functional.interpolate(logits, size=rgb.shape[:2], mode="bilinear", align_corners=False)
         return up[0].argmax(0)
 
-    def __call__(self, rgb: np.ndarray) -> np.ndarray:  # rgb [H, W, 3] uint8 -> [H, W] uint16
-        """NYU40 class ids of every pixel (0 = unlabelled: outdoor ADE20K classes)."""
-        return self.lut[self.ade20k_classes(rgb)].cpu().numpy().astype(np.uint16)
+    def __call__(self, rgb: np.ndarray, downscale: float = 1.0) -> np.ndarray:  # [H, W, 3] uint8 -> [H, W] uint16
+        """NYU40 class ids of every pixel (0 = unlabelled: outdoor ADE20K classes); see :meth:`ade20k_classes`."""
+        return self.lut[self.ade20k_classes(rgb, downscale)].cpu().numpy().astype(np.uint16)

@@ -473,6 +473,9 @@ class Slam:
             return gaussians
         decoded = self.codec.decode(gaussians.semantics, self.label_candidates()).to(self.device)
         wrong = (gaussians.labels > 0) & (decoded != gaussians.labels) & (gaussians.label_weight >= _CONFIDENT_VOTES)
+        if self.locked_labels:  # an edit's Gaussians keep what the edit gave them
+            locked = torch.tensor(sorted(self.locked_labels), dtype=torch.int64, device=self.device)
+            wrong &= ~torch.isin(gaussians.labels, locked)
         targets = self.codec.encode(gaussians.labels).to(gaussians.semantics)  # [N, S]
         return gaussians.with_tensors(semantics=torch.where(wrong[:, None], targets, gaussians.semantics))
 
@@ -496,6 +499,7 @@ class Slam:
             self.gaussians, self._labels_stale = self._agreed(self.gaussians), False
 
     def _agreed(self, gaussians: GaussianMap) -> GaussianMap:
+        """``gaussians`` with classes and features in agreement, the way ``semantic.fusion`` says."""
         return self._snapped(gaussians) if self.votes else self._refreshed_labels(gaussians)
 
     def _refreshed_labels(self, gaussians: GaussianMap) -> GaussianMap:

@@ -104,3 +104,22 @@ def test_the_prune_bench_times_two_ways_to_the_same_rows():
         assert torch.equal(before.params[name], now.params[name]) and before.params[name].requires_grad
         assert torch.equal(before.adam.state[name].exp_avg_sq, now.adam.state[name].exp_avg_sq)
     assert torch.equal(before.result().labels, now.result().labels)
+
+
+def test_a_replay_reads_the_nodes_final_counts_integers_only():
+    from bench.bench_replay_loss import final_counts
+
+    log = (
+        "[INFO] [1732870000.5] [tracking_node]: final counts: frames_in 573, frames_dropped 40, "
+        "dropped[queue] 3, frames_tracked 533, mapping_steps_per_frame 2.0, labels_in 60, labels_fused 57"
+    )
+    counts = final_counts(log, "done: 573 frames")
+    assert counts == {
+        "frames_in": 573,
+        "frames_dropped": 40,
+        "frames_tracked": 533,
+        "labels_in": 60,
+        "labels_fused": 57,
+        "sent": 573,
+        "mapping_steps_per_frame": 2.0,
+    }

@@ -38,6 +38,19 @@ def test_segmenter_maps_the_models_classes_to_nyu40(segmenter):
         segmenter(rgb[..., 0])
 
 
+def test_a_smaller_model_input_gives_labels_at_the_image_size(segmenter):
+    rgb = np.random.default_rng(1).integers(0, 255, (96, 128, 3), dtype=np.uint8)
+    full, half = segmenter(rgb), segmenter(rgb, downscale=2.0)
+    assert half.shape == full.shape == (96, 128) and half.dtype == np.uint16
+    assert not np.array_equal(segmenter.ade20k_classes(rgb, 2.0), segmenter.ade20k_classes(rgb))  # it saw less
+    # the model's input keeps 32 px a side: 96 / 16 would be 6, so 16 acts as 3
+    assert np.array_equal(segmenter.ade20k_classes(rgb, 16.0), segmenter.ade20k_classes(rgb, 3.0))
+    with pytest.raises(SegmentationError, match="downscale"):
+        segmenter(rgb, downscale=0.5)
+    with pytest.raises(SegmentationError, match="too small"):
+        segmenter(rgb[:20])
+
+
 def test_unavailable_weights_are_one_clear_line(monkeypatch, tmp_path):
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     with pytest.raises(SegmentationError) as err:
