@@ -50,7 +50,7 @@ def prune_by_mask(opt: GaussianOptimizer, keep: torch.Tensor) -> None:
         opt.params[name] = opt.params[name].detach()[keep].clone().requires_grad_(True)
         s = opt.adam.state[name]
         opt.adam.state[name] = AdamMoments(s.exp_avg[keep], s.exp_avg_sq[keep], s.step)
-    opt._labels, opt._birth = opt._labels[keep], opt._birth[keep]
+    opt._labels, opt._birth, opt._weight = opt._labels[keep], opt._birth[keep], opt._weight[keep]
 
 
 def time_ms(n: int, semantic: int, removed: float, repeats: int) -> tuple[list[float], list[float]]:

@@ -73,35 +73,11 @@ def replay(
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
     env.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
-    side = None
-    if side_node:
-        side = subprocess.Popen(
-            [sys.executable, "-m", *side_node], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
-        )
-    node = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "sgs_slam_ros.slam_node",
-            "--transport",
-            transport,
-            "--ros-args",
-            "-p",
-            f"preset:={preset}",
-            "-p",
-            f"use_semantics:={str(semantics).lower()}",
-            "-p",
-            f"downscale:={downscale}",
-            "-p",
-            "save_on_shutdown:=false",  # a benchmark's map is not kept
-            *(a for param in params for a in ("-p", param)),
-            *(a for r in remaps for a in ("-r", r)),
-        ],
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    side = _start(side_node, env) if side_node else None
+    node_params = (f"preset:={preset}", f"use_semantics:={str(semantics).lower()}", f"downscale:={downscale}")
+    node_params += ("save_on_shutdown:=false", *params)  # a benchmark's map is not kept
+    ros_args = [*(a for param in node_params for a in ("-p", param)), *(a for r in remaps for a in ("-r", r))]
+    node = _start(("sgs_slam_ros.slam_node", "--transport", transport, "--ros-args", *ros_args), env)
     if before_play is not None:
         before_play()
     player = subprocess.run(
@@ -115,13 +91,24 @@ def replay(
     node.send_signal(signal.SIGINT)
     counts = final_counts(node.communicate(timeout=300)[0], player.stderr)
     if side is not None:
-        side.send_signal(signal.SIGINT)
-        side_log = side.communicate(timeout=120)[0]
-        final = [line for line in side_log.splitlines() if "final counts:" in line]
-        if not final:
-            raise RuntimeError(f"no counts from {side_node[0]}: {side_log[-1500:]}")
-        counts.update({f"side_{k}": int(v) for k, v in _COUNT.findall(final[-1])})
+        counts.update({f"side_{k}": v for k, v in _stop(side, side_node[0]).items()})
     return counts
+
+
+def _start(module_args: tuple[str, ...], env: dict[str, str]) -> subprocess.Popen:
+    """``python -m MODULE ARGS...`` with its output captured."""
+    cmd = [sys.executable, "-m", *module_args]
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def _stop(proc: subprocess.Popen, name: str) -> dict[str, int]:
+    """Stop a node as Ctrl-C does; the integer counts of its last ``final counts:`` line."""
+    proc.send_signal(signal.SIGINT)
+    log = proc.communicate(timeout=120)[0]
+    final = [line for line in log.splitlines() if "final counts:" in line]
+    if not final:
+        raise RuntimeError(f"no counts from {name}: {log[-1500:]}")
+    return {k: int(v) for k, v in _COUNT.findall(final[-1])}
 
 
 def final_counts(node_log: str, player_log: str) -> dict[str, float]:

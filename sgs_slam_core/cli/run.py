@@ -17,7 +17,7 @@ from sgs_slam_core.runner.label_stream import LabelStream
 from sgs_slam_core.runner.outputs import check_run_dir
 from sgs_slam_core.runner.realtime import RealtimeOptions
 
-__all__ = ["add_parser", "camera_rate", "default_preset", "open_input", "parse_topics", "run"]
+__all__ = ["add_label_arguments", "add_parser", "camera_rate", "default_preset", "open_input", "parse_topics", "run"]
 
 TOPIC_KEYS = ("color", "camera_info", "depth", "semantic", "pose")
 
@@ -63,6 +63,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="with --realtime: decode up to this many MiB of frames before the camera starts, as a camera "
         "delivers decoded images (0..1e6, default %(default).0f; 0 = read each frame just before its release)",
     )
+    add_label_arguments(p)
+    add_viewer_arguments(p)
+    p.set_defaults(func=run)
+
+
+def add_label_arguments(p: argparse.ArgumentParser) -> None:
+    """The labels' own stream (``--label-rate-hz``, ``--label-delay-ms``) and their mistakes (``--label-noise``)."""
     p.add_argument(
         "--label-rate-hz",
         type=FloatRange(0.01, 1000.0),
@@ -90,8 +97,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="N",
         help="with --label-noise: the seed its mistakes are drawn from (default %(default)s)",
     )
-    add_viewer_arguments(p)
-    p.set_defaults(func=run)
 
 
 def camera_rate(text: str) -> float | str:

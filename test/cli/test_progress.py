@@ -72,6 +72,6 @@ def test_slam_progress_shows_live_ate_gaussians_and_failures():
     expected = 100 * ate(ests, gts).rmse
     assert progress.ate_cm == pytest.approx(expected)
     last = out.getvalue().splitlines()[-1]
-    assert f"ATE {expected:.2f} cm" in last and "12,345 Gaussians (0.7 MB)" in last and "1 tracking failures" in last
+    assert f"ATE {expected:.2f} cm" in last and "12,345 Gaussians (0.8 MB)" in last and "1 tracking failures" in last
     assert "0 keyframes (0 MB)" in last
     assert "5/5" in last
