@@ -12,7 +12,7 @@ folder and loaded as a model would be: the real model's cost, meaningless labels
 be downloaded on a machine without the hub). Needs the ``segmentation`` extra (transformers).
 
     python bench/bench_ros_segmenter.py ../shared/data/tum_fr3_teddy --downscale 4 [--model NAME_OR_DIR]
-        [--seg-downscale 2 --seg-threads 1] [--repeats 2] [--no-append]
+        [--seg-downscale 2 --seg-threads 1 --slam-threads 1] [--repeats 2] [--no-append]
 """
 
 from __future__ import annotations
@@ -86,7 +86,7 @@ def ros_run(bag: Path, args: argparse.Namespace, model: str | None) -> Outcome:
     from bench.pose_recorder import PoseRecorder  # noqa: PLC0415 - rclpy only for this run
 
     domain = random.randint(1, 100)
-    params = ("map_alignment:=optical",)
+    params = ("map_alignment:=optical", f"threads:={args.slam_threads}")
     remaps = (*(r for r in REMAPS if not r.startswith("semantic/image:=")), f"semantic/image:={LABELS_TOPIC}")
     side: tuple[str, ...] = ()
     if model is not None:
@@ -155,6 +155,7 @@ def main() -> int:
     p.add_argument("--model", help="SegFormer ADE20K hub name or folder (default: b0 with random weights)")
     p.add_argument("--seg-downscale", type=float, default=1.0, help="segmentation_node's downscale parameter")
     p.add_argument("--seg-threads", type=int, default=0, help="segmentation_node's threads parameter (0: default)")
+    p.add_argument("--slam-threads", type=int, default=0, help="slam_node's threads parameter (0: default)")
     p.add_argument("--compress", choices=["zstd", "none"], default="zstd", help="chunks of the bag a dataset becomes")
     p.add_argument("--repeats", type=int, default=2, help="replays of each (a live run varies run to run)")
     p.add_argument("--no-append", action="store_true")
@@ -177,7 +178,8 @@ def main() -> int:
         model_name = args.model or "SegFormer-b0, random weights"
         note = (
             f"`{args.input.name}`, preset {args.preset}, downscale {args.downscale:g}, segmenter {model_name} on the "
-            f"CPU (its downscale {args.seg_downscale:g}, threads {args.seg_threads or 'default'}); `bag_player` "
+            f"CPU (its downscale {args.seg_downscale:g}, threads {args.seg_threads or 'default'}; slam_node's threads "
+            f"{args.slam_threads or 'default'}); `bag_player` "
             "at the recorded rate, `segmentation_node` and `slam_node` (shared memory, three "
             "processes), alternating with semantics off"
         )

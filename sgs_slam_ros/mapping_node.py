@@ -50,7 +50,7 @@ from sgs_slam_ros.camera_inputs import CameraInputs
 from sgs_slam_ros.diagnostics import OK, WARN, Diagnostics, RateMeter
 from sgs_slam_ros.edits import requested_edits
 from sgs_slam_ros.messages import camera_info_msg, image_msg, pointcloud_msg
-from sgs_slam_ros.params import COMMON, EDIT, MAPPING, declare, slam_config
+from sgs_slam_ros.params import COMMON, EDIT, MAPPING, declare, slam_config, use_threads
 from sgs_slam_ros.qos import latched_qos, output_qos
 from sgs_slam_ros.runtime import run_nodes
 from sgs_slam_ros.timers import Throttled
@@ -85,6 +85,7 @@ class MappingNode(Node):
         """``pipeline``: share a composed tracking node's; ``camera_frame``: its camera frame id."""
         super().__init__("mapping_node", **kwargs)
         self.params = declare(self, COMMON + MAPPING + EDIT)
+        use_threads(self.params)
         self.map_frame = self.params["map_frame"]
         self._owns_pipeline = pipeline is None
         self._camera_frame = camera_frame

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import torch
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException, ParameterException
 from rclpy.node import Node
@@ -32,6 +33,7 @@ __all__ = [
     "ParameterError",
     "declare",
     "slam_config",
+    "use_threads",
 ]
 
 
@@ -63,6 +65,14 @@ COMMON = (
         string_list=True,
     ),
     ParamSpec("device", "auto", "compute device", choices=("auto", "cpu", "cuda"), read_only=True),
+    ParamSpec(
+        "threads",
+        0,
+        "torch CPU threads of this process (0 = torch's default, one a core); the tracking and mapping threads "
+        "each use them, so on a small CPU 1 avoids running more threads than cores",
+        bounds=(0, 256),
+        read_only=True,
+    ),
     ParamSpec("map_frame", "map", "frame id of poses, paths, clouds and the /tf root", read_only=True),
     ParamSpec("camera_frame", "", "frame id of the camera ('' = header.frame_id of rgb/image)", read_only=True),
     ParamSpec("input_qos", "best_effort", "image subscription QoS", choices=INPUT_QOS_CHOICES, read_only=True),
@@ -307,6 +317,12 @@ class NodeParams:
 def declare(node: Node, specs: tuple[ParamSpec, ...]) -> NodeParams:
     """Declare ``specs`` on ``node``; a bad value given at start-up raises :class:`ParameterError`."""
     return NodeParams(node, specs)
+
+
+def use_threads(values: NodeParams) -> None:
+    """Set torch's CPU threads for this process from the ``threads`` parameter (0: leave torch's default)."""
+    if values["threads"] > 0:
+        torch.set_num_threads(values["threads"])
 
 
 def slam_config(values: NodeParams) -> SlamConfig:

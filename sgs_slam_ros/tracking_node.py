@@ -38,7 +38,7 @@ from sgs_slam_ros.activity import Activity
 from sgs_slam_ros.camera_inputs import CameraInputs
 from sgs_slam_ros.diagnostics import OK, WARN, Diagnostics, RateMeter
 from sgs_slam_ros.messages import path_msg, pose_msg
-from sgs_slam_ros.params import COMMON, TRACKING, ParameterError, declare, slam_config
+from sgs_slam_ros.params import COMMON, TRACKING, ParameterError, declare, slam_config, use_threads
 from sgs_slam_ros.qos import latched_qos, output_qos
 from sgs_slam_ros.runtime import run_nodes
 from sgs_slam_ros.tf import TfFrames, TfPublisher
@@ -68,6 +68,7 @@ class TrackingNode(Node):
         """
         super().__init__("tracking_node", **kwargs)
         self.params = declare(self, COMMON + TRACKING)
+        use_threads(self.params)
         self.map_frame = self.params["map_frame"]
         try:
             self.mount = pose_from_xyz_rpy(self.params["camera_mount"])

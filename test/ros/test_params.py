@@ -7,12 +7,13 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 from rcl_interfaces.msg import ParameterType
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from sensor_msgs.msg import Image
 
-from sgs_slam_ros.params import COMMON, EDIT, MAPPING, TRACKING
+from sgs_slam_ros.params import COMMON, EDIT, MAPPING, TRACKING, use_threads
 from sgs_slam_ros.slam_node import build_slam_nodes, main
 
 from ..polling import wait_for
@@ -148,3 +149,14 @@ def test_the_console_script_prints_no_traceback():
     assert proc.stderr.strip() == (
         "slam_node: error: parameter depth_scale: expected a floating-point number (write 1000.0, not an integer)"
     )
+
+
+def test_threads_sets_torchs_cpu_threads_and_zero_leaves_them():
+    before = torch.get_num_threads()
+    try:
+        use_threads({"threads": 0})
+        assert torch.get_num_threads() == before
+        use_threads({"threads": 1})
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
