@@ -12,15 +12,13 @@ tracked poses, both against the true labels, and the map's gain over its input.
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import append_section, markdown_table
+from bench.common import append_section, cli_metrics, markdown_table
 from sgs_slam_core.cli.demo import default_room_dir, ensure_room
 from sgs_slam_core.datasets.label_noise import LABEL_NOISE_LEVELS
 
@@ -29,12 +27,7 @@ HEADERS = ["noise", "seed", "run", "tracked", "ATE cm", "input mIoU %", "map mIo
 
 def run(source: Path, out: Path, downscale: float, extra: list[str]) -> dict:
     """One ``sgs-slam run``'s metrics.json."""
-    cmd = [sys.executable, "-m", "sgs_slam_core.cli", "run", str(source), "--out", str(out), "--overwrite", "--quiet"]
-    cmd += ["--downscale", f"{downscale:g}", *extra]
-    proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise SystemExit(f"bench_label_noise: {' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
-    return json.loads((out / "metrics.json").read_text())
+    return cli_metrics(source, out, ["--downscale", f"{downscale:g}", *extra], "bench_label_noise")
 
 
 def row(level: str, seed: int, name: str, m: dict) -> list[object]:

@@ -17,15 +17,13 @@ release to its labels fused, median).
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import append_section, markdown_table
+from bench.common import append_section, cli_metrics, markdown_table
 from sgs_slam_core.cli.demo import default_room_dir, ensure_room
 
 HEADERS = ["run", "tracked", "ATE cm", "mIoU %", "mIoU % (paper)", "labels fused", "unmatched", "latency ms"]
@@ -33,12 +31,7 @@ HEADERS = ["run", "tracked", "ATE cm", "mIoU %", "mIoU % (paper)", "labels fused
 
 def run(source: Path, out: Path, args: argparse.Namespace, extra: list[str]) -> dict:
     """One ``sgs-slam run``'s metrics.json."""
-    cmd = [sys.executable, "-m", "sgs_slam_core.cli", "run", str(source), "--out", str(out), "--overwrite", "--quiet"]
-    cmd += ["--downscale", str(args.downscale), *extra]
-    proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise SystemExit(f"bench_late_labels: {' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
-    return json.loads((out / "metrics.json").read_text())
+    return cli_metrics(source, out, ["--downscale", str(args.downscale), *extra], "bench_late_labels")
 
 
 def row(name: str, m: dict) -> list[object]:

@@ -86,6 +86,16 @@ def cli_run(source: Path, out: Path, args: argparse.Namespace, realtime: bool) -
     return Outcome(name, m["frames_in"], m["frames_tracked"], ate_cm, m.get("map_steps_per_frame"))
 
 
+def published_ate_cm(bag: Path, poses: dict[int, np.ndarray]) -> float | None:
+    """ATE RMSE (cm) of the poses a node published (stamp ns -> c2w) against the bag's ground truth; None under 3."""
+    dataset = open_dataset(bag)
+    truth = {stamp: dataset.ground_truth(i) for i, stamp in enumerate(dataset.stamps_ns)}  # no image decoded
+    pairs = [(c2w, truth[stamp]) for stamp, c2w in sorted(poses.items()) if truth.get(stamp) is not None]
+    if len(pairs) < 3:
+        return None
+    return 100 * ate(np.stack([p for p, _ in pairs]), np.stack([g for _, g in pairs])).rmse
+
+
 def ros_run(bag: Path, args: argparse.Namespace) -> Outcome:
     """The bag at its recorded rate into ``slam_node``; the published poses against the bag's ground truth."""
     from bench.pose_recorder import PoseRecorder  # noqa: PLC0415 - rclpy only for this run
@@ -101,12 +111,7 @@ def ros_run(bag: Path, args: argparse.Namespace) -> Outcome:
 
         counts = replay(bag, "shm", args.downscale, args.preset, args.semantics, params, domain, node_ready)
         poses = recorder.wait_quiet(5.0)
-    dataset = open_dataset(bag)
-    gt = {f.stamp_ns: f.gt_c2w for f in (dataset[i] for i in range(len(dataset))) if f.gt_c2w is not None}
-    pairs = [(c2w, gt[stamp]) for stamp, c2w in sorted(poses.items()) if stamp in gt]
-    ate_cm = (
-        100 * ate(np.stack([p for p, _ in pairs]), np.stack([g for _, g in pairs])).rmse if len(pairs) > 2 else None
-    )
+    ate_cm = published_ate_cm(bag, poses)
     steps = counts.get("mapping_steps_per_frame")
     return Outcome("bag_player -> slam_node", int(counts["frames_in"]), len(poses), ate_cm, steps)
 

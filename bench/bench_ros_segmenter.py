@@ -30,10 +30,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.bench_replay_loss import REMAPS, replay
-from bench.bench_ros_live import bag_of
+from bench.bench_ros_live import bag_of, published_ate_cm
 from bench.common import append_section, markdown_table
-from sgs_slam_core.datasets import open_dataset
-from sgs_slam_core.metrics import ate
 
 LABELS_TOPIC = "/segmentation/labels"  # the segmenter publishes here, slam_node subscribes here
 COLOR_TOPIC = next(r.split(":=")[1] for r in REMAPS if r.startswith("rgb/image:="))
@@ -110,12 +108,7 @@ def ros_run(bag: Path, args: argparse.Namespace, model: str | None) -> Outcome:
         counts = replay(bag, "shm", args.downscale, args.preset, model is not None, params, domain, node_ready, remaps,
                         side)  # fmt: skip
         poses = recorder.wait_quiet(5.0)
-    dataset = open_dataset(bag)
-    gt = {f.stamp_ns: f.gt_c2w for f in (dataset[i] for i in range(len(dataset))) if f.gt_c2w is not None}
-    pairs = [(c2w, gt[stamp]) for stamp, c2w in sorted(poses.items()) if stamp in gt]
-    ate_cm = None
-    if len(pairs) > 2:
-        ate_cm = 100 * ate(np.stack([p for p, _ in pairs]), np.stack([g for _, g in pairs])).rmse
+    ate_cm = published_ate_cm(bag, poses)
     if model is None:
         return Outcome("slam_node, semantics off", int(counts["frames_in"]), len(poses), ate_cm)
     return Outcome(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import json
 import multiprocessing
 import os
 import platform
@@ -90,3 +91,12 @@ def generate_apart(path: Path, config: SynthConfig) -> Path:
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
         return pool.submit(generate, path, config).result()
+
+
+def cli_metrics(source: Path, out: Path, args: list[str], bench: str) -> dict:
+    """``sgs-slam run SOURCE --out OUT ARGS`` in a child process; its metrics.json (failing: exit naming ``bench``)."""
+    cmd = [sys.executable, "-m", "sgs_slam_core.cli", "run", str(source), "--out", str(out), "--overwrite", "--quiet"]
+    proc = subprocess.run([*cmd, *args], check=False, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"{bench}: {' '.join([*cmd, *args])} failed:\n{proc.stderr[-2000:]}")
+    return json.loads((out / "metrics.json").read_text())
