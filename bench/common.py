@@ -93,10 +93,13 @@ def generate_apart(path: Path, config: SynthConfig) -> Path:
         return pool.submit(generate, path, config).result()
 
 
-def cli_metrics(source: Path, out: Path, args: list[str], bench: str) -> dict:
-    """``sgs-slam run SOURCE --out OUT ARGS`` in a child process; its metrics.json (failing: exit naming ``bench``)."""
+def cli_metrics(source: Path, out: Path, args: list[str], bench: str, checkout: Path = REPO) -> dict:
+    """``sgs-slam run SOURCE --out OUT ARGS`` of ``checkout`` in a child process; its metrics.json.
+
+    Failing, the bench exits naming ``bench``.
+    """
     cmd = [sys.executable, "-m", "sgs_slam_core.cli", "run", str(source), "--out", str(out), "--overwrite", "--quiet"]
-    proc = subprocess.run([*cmd, *args], check=False, capture_output=True, text=True)
+    proc = subprocess.run([*cmd, *args], check=False, capture_output=True, text=True, cwd=checkout)
     if proc.returncode != 0:
         raise SystemExit(f"{bench}: {' '.join([*cmd, *args])} failed:\n{proc.stderr[-2000:]}")
     return json.loads((out / "metrics.json").read_text())

@@ -253,9 +253,25 @@ def _check(spec: ParamSpec, value: Any) -> Any:
     return value
 
 
+def _integers_as_floats(node: Node, specs: tuple[ParamSpec, ...]) -> None:
+    """Start-up values written as integers (``downscale:=2``) for floating-point parameters, as those numbers.
+
+    rclpy refuses an INTEGER value for a DOUBLE parameter, and users write integers. Node's
+    ``_parameter_overrides`` are the start-up values (rclpy has no public way to them before
+    declaring); without it nothing changes and rclpy's refusal stands.
+    """
+    overrides = getattr(node, "_parameter_overrides", None)
+    if not isinstance(overrides, dict):
+        return
+    for spec in specs:
+        given = overrides.get(spec.name)
+        if isinstance(spec.default, float) and given is not None and given.type_ == Parameter.Type.INTEGER:
+            overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE, float(given.value))
+
+
 def _type_hint(spec: ParamSpec, err: ParameterException) -> str:
     if isinstance(spec.default, float):
-        return f"parameter {spec.name}: expected a floating-point number (write {spec.default!r}, not an integer)"
+        return f"parameter {spec.name}: expected a number like {spec.default!r}"
     kind = type(spec.default).__name__
     return f"parameter {spec.name}: expected {kind} like {spec.default!r} ({err})"
 
@@ -272,6 +288,7 @@ class NodeParams:
         self.specs = {s.name: s for s in specs}
         self.values: dict[str, Any] = {}
         self.on_change: dict[str, Callable[[Any], None]] = {}
+        _integers_as_floats(node, specs)
         for spec in specs:
             try:
                 declared = node.declare_parameter(spec.name, spec.default, _descriptor(spec)).value

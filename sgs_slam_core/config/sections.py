@@ -553,12 +553,13 @@ class LiveSettings:
     """Live operation (``--realtime``, the ROS nodes); lockstep runs ignore it.
 
     Attributes:
-        map_turn_fraction: on the CPU, where tracking and mapping take turns, the mapping steps a
-            tracked frame's job makes before the next waiting frame is tracked, as a fraction of
-            ``mapping.iterations`` (rounded up; 0 = none: a waiting frame is tracked once the step
-            in progress ends, and mapping only fills the time between frames). 0 by default: a
-            compulsory step a frame cost fr1/desk (tracking 20 ms a frame on 2 cores) a fifth of
-            its frames live, and the map was no better for it.
+        min_map_steps: on the CPU, where tracking and mapping take turns, the least mean mapping
+            steps of a frame's job (over the last ten jobs that optimised): a job below it makes the
+            steps it owes even while the next frame waits, which may then be dropped (0 = none:
+            mapping only fills the time between frames). Where tracking alone took the whole frame
+            period (fr1/desk's fast swing in a slow spell of the machine), the map went without a
+            step for hundreds of frames and the track was lost; a floor kept it, and 0.1 costs a
+            fast machine fewer frames than 0.25.
         tracking_method: the tracker live runs use in place of ``tracking.method`` (null: that
             one). Gauss-Newton by default: it renders the map twice a frame where Adam renders it
             at every step, so it keeps up with a camera; lockstep runs keep ``tracking.method``.
@@ -586,7 +587,7 @@ class LiveSettings:
             appeared in front of it; new Gaussians there can (the ``tum`` preset: 20).
     """
 
-    map_turn_fraction: float = 0.0
+    min_map_steps: float = 0.1
     tracking_method: TrackerName | None = "gauss_newton"
     mapping_every: int | None = None
     refresh_labels_keyframes_only: bool | None = True
@@ -606,5 +607,5 @@ class LiveSettings:
             _positive("live", densify_depth_error_factor=self.densify_depth_error_factor)
         if self.mapping_every is not None and self.mapping_every < 1:
             raise ConfigError(f"live.mapping_every must be >= 1 or null, got {self.mapping_every}")
-        if not 0 <= self.map_turn_fraction <= 1:
-            raise ConfigError(f"live.map_turn_fraction must be in [0, 1], got {self.map_turn_fraction}")
+        if not 0 <= self.min_map_steps <= 100:
+            raise ConfigError(f"live.min_map_steps must be in [0, 100], got {self.min_map_steps}")

@@ -13,10 +13,11 @@ both drive it. Callers only hand over frames; the work happens on two worker thr
 
 Live on the CPU, tracking and mapping alternate instead of running their kernels at the same time
 (two thread teams on a few cores slow each other down, measured). A tracked frame's mapping job
-makes its turn of steps (``map_turn_fraction`` of ``mapping.iterations``), goes on while no frame
-waits, and ends (publishing its map) at the first step boundary after its turn where one does;
-then that frame is tracked. So every tracked frame is in the map the next one is tracked
-against, and a slow machine tracks fewer frames rather than tracking against a stale map.
+makes its turn of steps (what keeps the mean over the last ``MAP_FLOOR_JOBS`` jobs at
+``live.min_map_steps``), goes on while no frame waits, and ends (publishing its map) at the first
+step boundary after its turn where one does; then that frame is tracked. So every tracked frame is
+in the map the next one is tracked against, and a machine that cannot keep up drops frames rather
+than tracking against a map that is never optimised.
 Label images may come later than their frames (a segmenter is slower than the camera): with
 ``late_labels``, mapped views are kept for ``live.label_buffer_s`` seconds, each label image is
 matched to the view of its stamp (:class:`~sgs_slam_core.live.label_matcher.LabelMatcher`) and
@@ -66,6 +67,9 @@ __all__ = ["MapJob", "PipelineStats", "SlamPipeline", "SlamSnapshot"]
 # With mapping on its own CUDA stream beside tracking, a job ends once it made this fraction of its
 # steps and a newer frame waits to be mapped (1 = never early), so a GPU moves on to the newest frame.
 PREEMPT_FRACTION = 1 / 3
+# Live on the CPU: the mapping steps a job owes keep the mean over this many jobs (its own included)
+# at ``live.min_map_steps``.
+MAP_FLOOR_JOBS = 10
 
 
 class _StoppingError(Exception):
@@ -142,8 +146,8 @@ class SlamPipeline:
     ``track`` / ``map``: which workers run here (a standalone tracking or mapping node runs one).
     ``ready_to_track(frames_tracked)``: an extra lockstep condition (a remote map has caught up).
     ``late_labels``: label images come on their own (:meth:`submit_labels`), not with the frames.
-    How live work shares the machine comes from ``slam.config.live`` (``map_turn_fraction``) and
-    ``PREEMPT_FRACTION``.
+    How live work shares the machine comes from ``slam.config.live`` (``min_map_steps``),
+    ``MAP_FLOOR_JOBS`` and ``PREEMPT_FRACTION``.
     Listeners are called on the worker threads; one that raises is logged and counted.
     """
 
@@ -177,10 +181,13 @@ class SlamPipeline:
         self._map_stream = torch.cuda.Stream(slam.device) if slam.device.type == "cuda" else None
         # live on the CPU: tracking and mapping take turns instead of sharing the cores (see the module doc)
         self._share_cpu = not lockstep and track and map and slam.device.type == "cpu"
-        iterations, live = slam.config.mapping.iterations, slam.config.live
-        # live on the CPU: steps of a tracked frame's job before the next frame is tracked
-        self._turn_steps = math.ceil(live.map_turn_fraction * iterations) if self._share_cpu else 0
+        iterations = slam.config.mapping.iterations
+        # live on the CPU: the mean steps of a frame's job that its turn keeps up
+        self._min_steps = slam.config.live.min_map_steps if self._share_cpu else 0.0
+        self._recent_steps: deque[int] = deque(maxlen=MAP_FLOOR_JOBS - 1)  # of the last jobs that asked for steps
+        self._turn_steps = 0  # steps the current job makes before a waiting frame is tracked
         self._map_steps = 0  # steps the current mapping job has made
+        self._asked = False  # the current job asked for a step (a failed frame or one not due does not)
         # live beside tracking: a job with a newer one waiting ends after this many steps (0: it never does)
         self._preempt_steps = 0 if lockstep or self._share_cpu else math.ceil(PREEMPT_FRACTION * iterations)
         self._threads = []
@@ -260,6 +267,13 @@ class SlamPipeline:
         """The mapping job in progress has not yet made its turn of steps (live on the CPU)."""
         return self._map_steps < self._turn_steps
 
+    def _owed_steps(self) -> int:
+        """The steps a frame's job makes before a waiting frame: what lifts the recent mean to the floor."""
+        if not self._min_steps:
+            return 0
+        recent = self._recent_steps
+        return max(0, math.ceil(self._min_steps * (len(recent) + 1) - sum(recent)))
+
     def _track_loop(self) -> None:
         while True:
             with self._cv:
@@ -302,7 +316,8 @@ class SlamPipeline:
                 job = self._jobs.popleft() if self._jobs else None  # a frame's job first: the next frame needs it
                 late = self._label_jobs.popleft() if job is None else None
                 self._busy["map"] = True
-                self._map_steps = 0
+                self._map_steps, self._asked = 0, False
+                self._turn_steps = self._owed_steps() if job is not None else 0  # labels wait for a free moment
             if late is not None:
                 self._fuse(late)
                 continue
@@ -320,6 +335,8 @@ class SlamPipeline:
                 self._busy["map"] = False
                 self.stats.mapped += int(result is not None)
                 self.stats.map_steps += result.stats.iterations if result is not None and result.stats else 0
+                if self._asked:
+                    self._recent_steps.append(self._map_steps)
                 if view is not None:  # with the hand-over: a lockstep tracker waits for its label jobs too
                     self._label_jobs.extend(self._labels.add_view(*view))
                 self._cv.notify_all()
@@ -367,6 +384,7 @@ class SlamPipeline:
         with self._cv:
             if not self._running:
                 raise _StoppingError
+            self._asked = True
             if self._finishing:
                 return False
             if self._share_cpu and self._frames and not self._in_turn():

@@ -123,3 +123,15 @@ def test_a_replay_reads_the_nodes_final_counts_integers_only():
         "sent": 573,
         "mapping_steps_per_frame": 2.0,
     }
+
+
+def test_a_live_ab_row_and_medians_read_a_runs_metrics():
+    from bench.bench_live_ab import HEADERS, medians, row
+
+    keys = ("frames_in", "frames_tracked", "ate_rmse_m", "track_ms_per_frame", "map_steps_per_frame")
+    values = [(100, 90, 0.03, 21.0, 0.5), (100, 80, 0.05, 30.0, 0.4), (100, 96, None, 20.0, 1.0)]
+    runs = [dict(zip(keys, v, strict=True)) for v in values]
+    first = row(1, "new", "abc1234", {**runs[0], "tracking_lost_events": 2})
+    assert len(first) == len(HEADERS) and first[3] == "90 of 100 (90%)" and first[4] == "3.00" and first[-1] == 2
+    assert row(3, "base", "abc1234", runs[2])[4] == "-"
+    assert medians(runs) == "90% tracked at 4.00 cm"  # ATE median over the runs that have one

@@ -119,17 +119,17 @@ def test_live_on_the_cpu_mapping_steps_never_start_while_a_frame_is_tracked():
         pipeline.shutdown()
 
 
-@pytest.mark.parametrize(("turn", "steps"), [(0.0, 0), (0.1, 2), (0.25, 5)])
-def test_live_on_the_cpu_a_tracked_frames_job_makes_its_turn_then_ends_for_the_next_frame(turn, steps):
-    slam = TimedSlam(live=LiveSettings(map_turn_fraction=turn))
+@pytest.mark.parametrize(("floor", "steps"), [(0.0, [0, 0, 0, 0]), (2.0, [2, 2, 2, 2]), (0.5, [1, 0, 1, 0])])
+def test_live_on_the_cpu_a_frames_job_makes_the_steps_its_floor_owes_then_ends_for_the_next_frame(floor, steps):
+    slam = TimedSlam(live=LiveSettings(min_map_steps=floor))
     pipeline = SlamPipeline(slam, lockstep=False, log=lambda _: None)
     try:
-        for i in range(12):  # a 100 Hz camera: a frame always waits once a job has made its turn
+        for i in range(24):  # a 100 Hz camera: a frame always waits once a job has made its turn
             pipeline.submit_frame(SimpleNamespace(index=i))
             time.sleep(0.01)
         assert pipeline.wait_idle(20.0)
         assert slam.tracks_during_jobs == 0  # the next frame meets the map with the last one in it
-        assert slam.job_steps[:-1] == [steps] * (len(slam.job_steps) - 1) and len(slam.job_steps) >= 2
+        assert len(slam.job_steps) >= 5 and slam.job_steps[:4] == steps  # the mean kept at the floor
         assert slam.job_steps[-1] == 20  # nothing waits after the last frame: its job runs to the end
         assert pipeline.stats.dropped_jobs == 0
         assert pipeline.stats.map_steps == sum(slam.job_steps)  # what /diagnostics reports per frame
