@@ -556,10 +556,10 @@ class LiveSettings:
         min_map_steps: on the CPU, where tracking and mapping take turns, the least mean mapping
             steps of a frame's job (over the last ten jobs that optimised): a job below it makes the
             steps it owes even while the next frame waits, which may then be dropped (0 = none:
-            mapping only fills the time between frames). Where tracking alone took the whole frame
-            period (fr1/desk's fast swing in a slow spell of the machine), the map went without a
-            step for hundreds of frames and the track was lost; a floor kept it, and 0.1 costs a
-            fast machine fewer frames than 0.25.
+            mapping only fills the time between frames). 0 by default: on fr1/desk, where tracking
+            alone can fill the frame period and the map then goes without a step for hundreds of
+            frames, floors of 0.1 to 1 cost frames and did not make the trajectory measurably
+            better run for run (BENCHMARKS.md); a steady map at fewer frames takes 1 or 2.
         tracking_method: the tracker live runs use in place of ``tracking.method`` (null: that
             one). Gauss-Newton by default: it renders the map twice a frame where Adam renders it
             at every step, so it keeps up with a camera; lockstep runs keep ``tracking.method``.
@@ -587,7 +587,7 @@ class LiveSettings:
             appeared in front of it; new Gaussians there can (the ``tum`` preset: 20).
     """
 
-    min_map_steps: float = 0.1
+    min_map_steps: float = 0.0
     tracking_method: TrackerName | None = "gauss_newton"
     mapping_every: int | None = None
     refresh_labels_keyframes_only: bool | None = True
