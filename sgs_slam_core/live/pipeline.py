@@ -13,11 +13,11 @@ both drive it. Callers only hand over frames; the work happens on two worker thr
 
 Live on the CPU, tracking and mapping alternate instead of running their kernels at the same time
 (two thread teams on a few cores slow each other down, measured). A tracked frame's mapping job
-makes its turn of steps (what keeps the mean over the last ``MAP_FLOOR_JOBS`` jobs at
-``live.min_map_steps``), goes on while no frame waits, and ends (publishing its map) at the first
-step boundary after its turn where one does; then that frame is tracked. So every tracked frame is
-in the map the next one is tracked against, and a machine that cannot keep up drops frames rather
-than tracking against a map that is never optimised.
+makes its turn of steps (those that keep the mean over the last ``MAP_FLOOR_JOBS`` jobs at
+``live.min_map_steps``; none by default), goes on while no frame waits, and ends (publishing its
+map) at the first step boundary after its turn where one does; then that frame is tracked. So
+every tracked frame is in the map the next one is tracked against, and a slow machine tracks fewer
+frames rather than tracking against a stale map.
 Label images may come later than their frames (a segmenter is slower than the camera): with
 ``late_labels``, mapped views are kept for ``live.label_buffer_s`` seconds, each label image is
 matched to the view of its stamp (:class:`~sgs_slam_core.live.label_matcher.LabelMatcher`) and
