@@ -21,9 +21,10 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from msg_adapters import stamp_to_ns
 from sgs_slam_core.frame import Frame
+from sgs_slam_core.slam.system import resolve_device
 from sgs_slam_ros.activity import Activity
 from sgs_slam_ros.diagnostics import OK, WARN, RateMeter
-from sgs_slam_ros.frames import FrameAssembler
+from sgs_slam_ros.frames import AUTO_DOWNSCALE, FrameAssembler
 from sgs_slam_ros.inputs import InputWatch
 from sgs_slam_ros.params import NodeParams
 from sgs_slam_ros.qos import input_qos
@@ -67,6 +68,7 @@ class CameraInputs:
             log,
             params["downscale"],
             on_labels if labelled else None,
+            cpu=resolve_device(params["device"]).type == "cpu",
         )
         params.on_change["sync_slop_s"] = self.assembler.set_slop
         params.on_change["depth_scale"] = lambda v: setattr(self.assembler, "depth_scale", v)
@@ -197,7 +199,7 @@ class CameraInputs:
         return {
             "input_size": text(a.input_size),
             "processing_size": text(a.processing_size),
-            "downscale": f"{a.downscale:g}",
+            "downscale": "auto" if a.downscale == AUTO_DOWNSCALE else f"{a.downscale:g}",
         }
 
     def transport(self) -> dict[str, str]:

@@ -5,7 +5,8 @@ counted for /diagnostics, and the frame is dropped. Every colour image is accoun
 a frame, is dropped by the synchroniser (no partner in time, or pushed out of its queue), is
 rejected (bad input), or still waits (``colour_in == emitted + colour_dropped + rejected + waiting``).
 With a ``downscale`` above 1 each frame is brought to the processing size exactly as ``sgs-slam run
---downscale`` does (colour area-averaged, depth and labels nearest, intrinsics scaled).
+--downscale`` does (colour area-averaged, depth and labels nearest, intrinsics scaled); ``auto``
+(0) picks the factor from the first camera_info's width (:func:`auto_downscale`).
 
 Label images are not synchronised with the frames: a segmenter is slower than the camera and behind
 it, and a frame that waited for its labels would wait out the segmenter. Each label image is checked
@@ -37,9 +38,18 @@ from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.geometry.camera import Intrinsics
 
-__all__ = ["FrameAssembler"]
+__all__ = ["AUTO_DOWNSCALE", "FrameAssembler", "auto_downscale"]
 
 RGB, DEPTH = 0, 1
+AUTO_DOWNSCALE = 0.0  # the downscale that is chosen from the camera's width
+# Auto on a CPU: the processing width at which two cores track a 30 Hz camera live (BENCHMARKS.md: 160x120
+# keeps up with fr3/teddy, 320x240 tracks a third of its frames).
+CPU_WIDTH_PX = 160
+
+
+def auto_downscale(width: int, cpu: bool) -> float:
+    """The ``auto`` downscale for a camera ``width`` px wide: on a CPU the factor to ~160 px (at least 1), else 1."""
+    return max(1.0, width / CPU_WIDTH_PX) if cpu else 1.0
 
 
 class _RejectedError(Exception):
@@ -65,9 +75,11 @@ class FrameAssembler:
         log: Callable[[str], None],
         downscale: float = 1.0,
         on_labels: Callable[[int, np.ndarray], None] | None = None,
+        cpu: bool = True,
     ) -> None:
         self.on_labels = on_labels
-        self.downscale = downscale
+        self.downscale = downscale  # AUTO_DOWNSCALE until the first camera_info
+        self.cpu = cpu  # what auto chooses for
         self.input_size: tuple[int, int] | None = None  # (width, height) of the latest frame as received
         self.processing_size: tuple[int, int] | None = None  # and as handed on
         self.depth_scale = depth_scale
@@ -163,11 +175,21 @@ class FrameAssembler:
                 "label image size differs", f"{labels.shape[1]}x{labels.shape[0]} vs camera {k.width}x{k.height}"
             )
             return
-        if self.downscale != 1.0:
+        if self._factor(k) != 1.0:
             size = k.scaled(1.0 / self.downscale)
             labels = cv2.resize(labels, (size.width, size.height), interpolation=cv2.INTER_NEAREST)
         if self.on_labels is not None:
             self.on_labels(stamp_to_ns(msg.header.stamp), labels)
+
+    def auto_text(self) -> str:
+        """What ``auto`` chooses here, for the start line."""
+        return f"a width of {CPU_WIDTH_PX} px on the CPU" if self.cpu else "the input size on the GPU"
+
+    def _factor(self, k: Intrinsics) -> float:
+        """The downscale for camera ``k``; ``auto`` is chosen from its width the first time."""
+        if self.downscale == AUTO_DOWNSCALE:
+            self.downscale = auto_downscale(k.width, self.cpu)
+        return self.downscale
 
     def image(self, index: int, msg: Any) -> None:
         """An rgb (0) or depth (1) image."""
@@ -219,7 +241,7 @@ class FrameAssembler:
         if not np.any(depth > 0):
             raise _RejectedError("depth image has no valid pixel")
         self.input_size = (k.width, k.height)
-        if self.downscale != 1.0:
+        if self._factor(k) != 1.0:
             k = k.scaled(1.0 / self.downscale)
             if min(k.width, k.height) < MIN_IMAGE_SIDE:
                 raise _RejectedError(

@@ -52,6 +52,7 @@ class ParamSpec:
     choices: tuple[str, ...] | None = None
     read_only: bool = False
     string_list: bool = False  # a list of strings, default empty (see _descriptor)
+    zero_is: str | None = None  # what 0 means where the other values start at 1 (e.g. "auto")
 
 
 COMMON = (
@@ -94,11 +95,13 @@ COMMON = (
     ParamSpec("depth_scale", 1000.0, "16UC1 depth units per metre (1000 = mm)", bounds=(1.0, 100000.0)),
     ParamSpec(
         "downscale",
-        1.0,
+        0.0,
         "processing size: divide the width and height of colour, depth, labels and camera_info by this "
-        "(as sgs-slam run --downscale; 4 turns 640x480 into 160x120)",
-        bounds=(1.0, 16.0),
+        "(as sgs-slam run --downscale; 4 turns 640x480 into 160x120); 0 = auto: on a CPU the factor that "
+        "makes the width 160 px (never above the camera's), on a GPU 1",
+        bounds=(0.0, 16.0),
         read_only=True,
+        zero_is="auto",
     ),
     ParamSpec(
         "lockstep", False, "process every frame in order (replays, tests); else keep up by dropping", read_only=True
@@ -250,6 +253,8 @@ def _check(spec: ParamSpec, value: Any) -> Any:
         raise ParameterError(f"parameter {spec.name}: {value!r} is not one of {', '.join(spec.choices)}")
     if isinstance(value, float) and not math.isfinite(value):
         raise ParameterError(f"parameter {spec.name}: {value} is not a finite number")
+    if spec.zero_is is not None and 0 < value < 1:
+        raise ParameterError(f"parameter {spec.name}: {value:g} is neither 0 ({spec.zero_is}) nor at least 1")
     return value
 
 

@@ -37,6 +37,7 @@ from sgs_slam_core.slam.system import Slam
 from sgs_slam_ros.activity import Activity
 from sgs_slam_ros.camera_inputs import CameraInputs
 from sgs_slam_ros.diagnostics import OK, WARN, Diagnostics, RateMeter
+from sgs_slam_ros.frames import AUTO_DOWNSCALE
 from sgs_slam_ros.messages import path_msg, pose_msg
 from sgs_slam_ros.params import COMMON, TRACKING, ParameterError, declare, slam_config, use_threads
 from sgs_slam_ros.qos import latched_qos, output_qos
@@ -114,7 +115,10 @@ class TrackingNode(Node):
         self.create_service(Trigger, "~/reset", self._reset)
         self.diagnostics = Diagnostics(self, self._status)
         mode = "lockstep" if self.params["lockstep"] else "live"
-        size = "input size" if self.params["downscale"] == 1.0 else f"input size / {self.params['downscale']:g}"
+        factor = self.params["downscale"]
+        size = {1.0: "input size", AUTO_DOWNSCALE: f"auto size ({self.camera.assembler.auto_text()})"}.get(
+            factor, f"input size / {factor:g}"
+        )
         self.get_logger().info(
             f"tracking {', '.join(self.camera.watch.topics.values())} with preset {self.params['preset']} "
             f"on {pipeline.slam.device} ({mode}, {pipeline.slam.config.tracking.method} tracker, "

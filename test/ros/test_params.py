@@ -135,6 +135,7 @@ BAD_START = [
     ("preset:=nope", "unknown preset 'nope'"),
     ("overrides:=['tracking.iterationz=3']", "unknown config key tracking.iterationz"),
     ("render_rate_hz:=100.0", "parameter render_rate_hz: out of range (allowed: 0.0 to 60.0)"),
+    ("downscale:=0.5", "parameter downscale: 0.5 is neither 0 (auto) nor at least 1"),
     ("map_alignment:=sideways", "parameter map_alignment: 'sideways' is not one of"),
     ("camera_mount:=[1.0, 2.0]", "parameter camera_mount: a pose needs 6"),
 ]

@@ -1,13 +1,16 @@
 """The nodes' processing size (``downscale``): colour, depth, labels and intrinsics shrunk as
 ``sgs-slam run --downscale`` shrinks a dataset, and outputs that say their size."""
 
+from dataclasses import replace
+
+import cv2
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import CameraInfo, Image
 
 from sgs_slam_core.datasets import DatasetOptions, open_dataset
-from sgs_slam_ros.frames import FrameAssembler
+from sgs_slam_ros.frames import AUTO_DOWNSCALE, FrameAssembler, auto_downscale
 from sgs_slam_ros.messages import camera_info_msg, image_msg
 from sgs_slam_ros.slam_node import build_slam_nodes
 
@@ -41,6 +44,25 @@ def test_frames_and_their_labels_are_resized_as_the_dataset_reader_does(tiny_sce
     assert np.array_equal(got.rgb, offline.rgb)
     assert np.allclose(got.depth, offline.depth, atol=5e-4)  # the node's depth came as millimetres
     assert a.input_size == (64, 48) and a.processing_size == (32, 24)
+
+
+def test_auto_makes_a_cpus_frames_160_px_wide_and_leaves_a_gpus_at_the_input_size(tiny_scene):
+    assert auto_downscale(640, cpu=True) == 4.0 and auto_downscale(848, cpu=True) == 5.3
+    assert auto_downscale(64, cpu=True) == 1.0  # never larger than the camera's
+    assert auto_downscale(640, cpu=False) == 1.0
+    frame = tiny_frames(tiny_scene)[3]
+    big = replace(  # the tiny frame as a 320x240 camera gives it
+        frame,
+        rgb=cv2.resize(frame.rgb, (320, 240), interpolation=cv2.INTER_NEAREST),
+        depth=cv2.resize(frame.depth, (320, 240), interpolation=cv2.INTER_NEAREST),
+        labels=cv2.resize(frame.labels, (320, 240), interpolation=cv2.INTER_NEAREST),
+        intrinsics=frame.intrinsics.scaled(5.0),
+    )
+    a, out, _, labels = assemble(big, AUTO_DOWNSCALE)
+    assert a.downscale == 2.0 and a.input_size == (320, 240) and a.processing_size == (160, 120)
+    assert out[0].rgb.shape == (120, 160, 3) and labels[0][1].shape == (120, 160)
+    a, out, _, _ = assemble(frame, AUTO_DOWNSCALE)
+    assert a.downscale == 1.0 and out[0].rgb.shape == (48, 64, 3)
 
 
 def test_a_downscale_that_leaves_too_small_a_frame_is_rejected_and_counted(tiny_scene):
