@@ -33,23 +33,15 @@ from msg_adapters import (
     rgb_from_image,
     stamp_to_ns,
 )
-from sgs_slam_core.datasets.base import MIN_IMAGE_SIDE, resize_frame
+from sgs_slam_core.datasets.base import CPU_WIDTH_PX, MIN_IMAGE_SIDE, auto_downscale, resize_frame
 from sgs_slam_core.errors import SgsSlamError
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.geometry.camera import Intrinsics
 
-__all__ = ["AUTO_DOWNSCALE", "FrameAssembler", "auto_downscale"]
+__all__ = ["AUTO_DOWNSCALE", "FrameAssembler"]
 
 RGB, DEPTH = 0, 1
 AUTO_DOWNSCALE = 0.0  # the downscale that is chosen from the camera's width
-# Auto on a CPU: the processing width at which two cores track a 30 Hz camera live (BENCHMARKS.md: 160x120
-# keeps up with fr3/teddy, 320x240 tracks a third of its frames).
-CPU_WIDTH_PX = 160
-
-
-def auto_downscale(width: int, cpu: bool) -> float:
-    """The ``auto`` downscale for a camera ``width`` px wide: on a CPU the factor to ~160 px (at least 1), else 1."""
-    return max(1.0, width / CPU_WIDTH_PX) if cpu else 1.0
 
 
 class _RejectedError(Exception):

@@ -8,14 +8,16 @@ from pathlib import Path
 
 from sgs_slam_core.cli.args import MAX_SEED, FloatRange, IntRange
 from sgs_slam_core.cli.viewer_args import add_viewer_arguments, start_viewer, viewer_options_from_args
-from sgs_slam_core.config import list_presets, load_config
+from sgs_slam_core.config import SlamConfig, list_presets, load_config
 from sgs_slam_core.datasets import Dataset, DatasetOptions, dataset_format, formats, open_dataset
+from sgs_slam_core.datasets.base import auto_downscale
 from sgs_slam_core.datasets.label_noise import LABEL_NOISE_LEVELS, NoisyLabels
 from sgs_slam_core.errors import DatasetError
 from sgs_slam_core.runner import format_table, run_offline
 from sgs_slam_core.runner.label_stream import LabelStream
 from sgs_slam_core.runner.outputs import check_run_dir
 from sgs_slam_core.runner.realtime import RealtimeOptions
+from sgs_slam_core.slam.system import resolve_device
 
 __all__ = ["add_label_arguments", "add_parser", "camera_rate", "default_preset", "open_input", "parse_topics", "run"]
 
@@ -112,13 +114,31 @@ def camera_rate(text: str) -> float | str:
     return hz
 
 
+def downscale_arg(text: str) -> float | str:
+    """``--downscale`` value: a factor in 1..64, or ``auto`` (chosen from the input's width and the device)."""
+    return "auto" if text == "auto" else FloatRange(1.0, 64.0)(text)
+
+
+def resolve_downscale(args: argparse.Namespace, config: SlamConfig, topics: dict[str, str]) -> float:
+    """``--downscale`` as a factor: ``auto`` opens the input once to read its width."""
+    if args.downscale != "auto":
+        return args.downscale
+    native = open_input(args.input, args.format, DatasetOptions(max_frames=1), topics)
+    return auto_downscale(native.intrinsics.width, resolve_device(config.device).type == "cpu")
+
+
 def add_dataset_arguments(p: argparse.ArgumentParser) -> None:
     """Format and frame-selection options shared by run and eval."""
     p.add_argument("--format", default="auto", choices=["auto", *formats()], help="dataset format (default: detect)")
     p.add_argument("--max-frames", type=IntRange(1), help="process at most N frames (>= 1)")
     p.add_argument("--stride", type=IntRange(1), default=1, help="use every K-th frame (>= 1)")
     p.add_argument("--start", type=IntRange(0), default=0, help="first frame (>= 0)")
-    p.add_argument("--downscale", type=FloatRange(1.0, 64.0), default=1.0, help="divide the image size by F (1..64)")
+    p.add_argument(
+        "--downscale",
+        type=downscale_arg,
+        default=1.0,
+        help="divide the image size by F (1..64), or auto: 160 px wide on a CPU, the input size on a GPU",
+    )
     p.add_argument(
         "--topic",
         dest="topics",
@@ -168,13 +188,15 @@ def run(args: argparse.Namespace) -> int:
     overrides = [*args.overrides, *([f"device={args.device}"] if args.device else [])]
     config = load_config(preset, args.config, overrides)  # config errors surface before any data is read
     viewer_options = viewer_options_from_args(args)
-    options = DatasetOptions(start=args.start, stride=args.stride, max_frames=args.max_frames, downscale=args.downscale)
     topics = parse_topics(args.topics)
+    downscale = resolve_downscale(args, config, topics)
+    options = DatasetOptions(start=args.start, stride=args.stride, max_frames=args.max_frames, downscale=downscale)
     truth = open_input(args.input, args.format, options, topics)
     dataset = _with_label_noise(truth, args.label_noise, args.label_noise_seed)
     print(
-        f"{dataset.name}: {len(dataset)} frames at {dataset.intrinsics.width}x{dataset.intrinsics.height}, "
-        f"preset {preset}, device {config.device}",
+        f"{dataset.name}: {len(dataset)} frames at {dataset.intrinsics.width}x{dataset.intrinsics.height}"
+        + (f" (downscale auto: {downscale:g})" if args.downscale == "auto" else "")
+        + f", preset {preset}, device {config.device}",
         file=sys.stderr,
     )
     provenance = {
@@ -184,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
             "start": args.start,
             "stride": args.stride,
             "max_frames": args.max_frames,
-            "downscale": args.downscale,
+            "downscale": downscale,
         },
         "topics": topics,
         "preset": preset,

@@ -22,11 +22,13 @@ from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.labels import LabelTable
 
 __all__ = [
+    "CPU_WIDTH_PX",
     "MIN_IMAGE_SIDE",
     "Dataset",
     "DatasetOptions",
     "FrameRecord",
     "RecordDataset",
+    "auto_downscale",
     "check_frame_size",
     "check_rigid",
     "read_color",
@@ -38,6 +40,14 @@ __all__ = [
 
 
 MIN_IMAGE_SIDE = 16  # px: below this the SSIM window (11 px) and tracking have too little to work with
+# ``downscale`` auto on a CPU: the processing width at which two cores track a 30 Hz camera live
+# (BENCHMARKS.md: 160x120 keeps up with fr3/teddy, 320x240 tracks a third of its frames).
+CPU_WIDTH_PX = 160
+
+
+def auto_downscale(width: int, cpu: bool) -> float:
+    """The ``auto`` downscale of images ``width`` px wide: on a CPU the factor to ~160 px (at least 1), else 1."""
+    return max(1.0, width / CPU_WIDTH_PX) if cpu else 1.0
 
 
 @dataclass(frozen=True)

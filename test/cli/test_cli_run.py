@@ -151,3 +151,19 @@ def test_compare_prints_one_table_across_runs(run_dir, tmp_path, capsys):
     head = yaml.safe_load((run_dir / "run.yaml").read_text())["git"]["commit"][:8]
     assert head in ours and "synthetic" in ours
     assert theirs.split()[-4:] == ["-", "-", "-", "cpu"]  # no run.yaml: no provenance, device from metrics.json
+
+
+def test_downscale_auto_is_chosen_from_the_inputs_width_and_recorded(tiny_scene, tmp_path, capsys):
+    out = tmp_path / "auto"
+    sets = [a for o in FAST_SLAM for a in ("--set", o)]
+    args = ["run", str(tiny_scene), "--out", str(out), "--max-frames", "2", "--quiet", "--downscale", "auto"]
+    assert main([*args, "--device", "cpu", *sets]) == 0
+    assert "64x48 (downscale auto: 1)" in capsys.readouterr().err  # 64 px is under the CPU's 160: never enlarged
+    assert yaml.safe_load((out / "run.yaml").read_text())["options"]["downscale"] == 1.0  # eval reopens it so
+
+
+def test_auto_downscale_brings_a_cpus_width_to_160_px_and_leaves_a_gpus_alone():
+    from sgs_slam_core.datasets.base import auto_downscale
+
+    assert auto_downscale(640, cpu=True) == 4.0 and auto_downscale(1280, cpu=True) == 8.0
+    assert auto_downscale(100, cpu=True) == 1.0 and auto_downscale(640, cpu=False) == 1.0

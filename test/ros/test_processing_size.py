@@ -10,7 +10,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import CameraInfo, Image
 
 from sgs_slam_core.datasets import DatasetOptions, open_dataset
-from sgs_slam_ros.frames import AUTO_DOWNSCALE, FrameAssembler, auto_downscale
+from sgs_slam_core.datasets.base import auto_downscale
+from sgs_slam_ros.frames import AUTO_DOWNSCALE, FrameAssembler
 from sgs_slam_ros.messages import camera_info_msg, image_msg
 from sgs_slam_ros.slam_node import build_slam_nodes
 
