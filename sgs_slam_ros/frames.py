@@ -6,7 +6,8 @@ a frame, is dropped by the synchroniser (no partner in time, or pushed out of it
 rejected (bad input), or still waits (``colour_in == emitted + colour_dropped + rejected + waiting``).
 With a ``downscale`` above 1 each frame is brought to the processing size exactly as ``sgs-slam run
 --downscale`` does (colour area-averaged, depth and labels nearest, intrinsics scaled); ``auto``
-(0) picks the factor from the first camera_info's width (:func:`auto_downscale`).
+(0) picks the factor from the camera's width at the first image
+(``sgs_slam_core.datasets.base.auto_downscale``: 160 px wide on a CPU, the input size on a GPU).
 
 Label images are not synchronised with the frames: a segmenter is slower than the camera and behind
 it, and a frame that waited for its labels would wait out the segmenter. Each label image is checked
@@ -70,7 +71,7 @@ class FrameAssembler:
         cpu: bool = True,
     ) -> None:
         self.on_labels = on_labels
-        self.downscale = downscale  # AUTO_DOWNSCALE until the first camera_info
+        self.downscale = downscale  # AUTO_DOWNSCALE until the first image meets a camera_info
         self.cpu = cpu  # what auto chooses for
         self.input_size: tuple[int, int] | None = None  # (width, height) of the latest frame as received
         self.processing_size: tuple[int, int] | None = None  # and as handed on
