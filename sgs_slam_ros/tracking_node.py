@@ -114,6 +114,10 @@ class TrackingNode(Node):
         self.params.on_change["path_rate_hz"] = self.path_out.set_rate
         self.create_service(Trigger, "~/reset", self._reset)
         self.diagnostics = Diagnostics(self, self._status)
+        self._log_start(pipeline)
+
+    def _log_start(self, pipeline: SlamPipeline) -> None:
+        """One line: the inputs, preset, device, mode, tracker, processing size and map frame."""
         mode = "lockstep" if self.params["lockstep"] else "live"
         factor = self.params["downscale"]
         size = {1.0: "input size", AUTO_DOWNSCALE: f"auto size ({self.camera.assembler.auto_text()})"}.get(

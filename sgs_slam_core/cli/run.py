@@ -193,12 +193,9 @@ def run(args: argparse.Namespace) -> int:
     options = DatasetOptions(start=args.start, stride=args.stride, max_frames=args.max_frames, downscale=downscale)
     truth = open_input(args.input, args.format, options, topics)
     dataset = _with_label_noise(truth, args.label_noise, args.label_noise_seed)
-    print(
-        f"{dataset.name}: {len(dataset)} frames at {dataset.intrinsics.width}x{dataset.intrinsics.height}"
-        + (f" (downscale auto: {downscale:g})" if args.downscale == "auto" else "")
-        + f", preset {preset}, device {config.device}",
-        file=sys.stderr,
-    )
+    auto = f" (downscale auto: {downscale:g})" if args.downscale == "auto" else ""
+    size = f"{dataset.intrinsics.width}x{dataset.intrinsics.height}{auto}"
+    print(f"{dataset.name}: {len(dataset)} frames at {size}, preset {preset}, device {config.device}", file=sys.stderr)
     provenance = {
         "input": str(args.input.resolve()),
         "format": dataset.name,
