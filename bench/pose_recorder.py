@@ -28,7 +28,7 @@ class PoseRecorder:
         rclpy.init(context=self._ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
         self._node = rclpy.create_node("bench_pose_recorder", context=self._ctx)
         qos = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
-        self._node.create_subscription(PoseStamped, topic, self._on_pose, qos)
+        self._sub = self._node.create_subscription(PoseStamped, topic, self._on_pose, qos)
         self._spinning: set[str] = set()  # nodes whose /diagnostics came: their executor spins
         self._node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self._executor = SingleThreadedExecutor(context=self._ctx)
@@ -60,8 +60,45 @@ class PoseRecorder:
                 raise TimeoutError(f"no /diagnostics from {node} within {timeout_s:g} s")
             time.sleep(0.1)
 
+    def wait_matched(self, timeout_s: float) -> None:
+        """Return once a pose publisher is matched (poses sent before are lost); raise after ``timeout_s``."""
+        end = time.monotonic() + timeout_s
+        while self._sub.get_publisher_count() == 0:
+            if time.monotonic() > end:
+                raise TimeoutError(f"no publisher of {self._sub.topic_name} within {timeout_s:g} s")
+            time.sleep(0.1)
+
     def wait_quiet(self, quiet_s: float) -> dict[int, np.ndarray]:
         """The poses once none has come for ``quiet_s`` seconds."""
         while time.monotonic() - self._last_message < quiet_s:
             time.sleep(0.1)
         return dict(self.poses)
+
+
+def main() -> int:
+    """Record poses until SIGINT or SIGTERM, then write them as JSON (stamp ns -> c2w rows), e.g. on another host."""
+    import argparse  # noqa: PLC0415 - only for the command line
+    import json  # noqa: PLC0415
+    import os  # noqa: PLC0415
+    import signal  # noqa: PLC0415
+    from pathlib import Path  # noqa: PLC0415
+
+    p = argparse.ArgumentParser(description=main.__doc__)
+    p.add_argument("out", type=Path, help="JSON file written at the end")
+    p.add_argument("--topic", default="/tracking_node/pose")
+    args = p.parse_args()
+    stop = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stop.set())
+    with PoseRecorder(int(os.environ.get("ROS_DOMAIN_ID", "0")), args.topic) as recorder:
+        recorder.wait_matched(300.0)
+        print("recording", flush=True)  # the caller may start the input now
+        stop.wait()
+        poses = dict(recorder.poses)
+    args.out.write_text(json.dumps({str(k): v.tolist() for k, v in poses.items()}))
+    print(f"{len(poses)} poses written to {args.out}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -24,6 +24,7 @@ from sgs_slam_core.frame import Frame
 from sgs_slam_core.slam.system import resolve_device
 from sgs_slam_ros.activity import Activity
 from sgs_slam_ros.diagnostics import OK, WARN, RateMeter
+from sgs_slam_ros.forward import forwarded_topic
 from sgs_slam_ros.frames import AUTO_DOWNSCALE, FrameAssembler
 from sgs_slam_ros.inputs import InputWatch
 from sgs_slam_ros.params import NodeParams
@@ -43,7 +44,10 @@ class CameraInputs:
     watched for silence too (the node calls ``watch.tick(name)``); ``hints``: a sentence per input
     added to its "silent" log line; ``activity``: the node's work (silence counts only while idle).
     ``on_labels(stamp_ns, labels)``: label images at the processing size (None: ``semantic/image`` is
-    not subscribed; with ``use_semantics`` off neither).
+    not subscribed; with ``use_semantics`` off neither). ``forwarded_by``: subscribe that tracking
+    node's forwarded frames (``<node>/frames/...``, :mod:`sgs_slam_ros.forward`) instead of the
+    camera's: they come at the processing size, and the frames it did not accept are gaps that are
+    not losses, so stamp gaps are not counted.
     """
 
     def __init__(
@@ -55,6 +59,7 @@ class CameraInputs:
         extra_topics: dict[str, str] | None = None,
         hints: dict[str, str] | None = None,
         on_labels: Callable[[int, np.ndarray], None] | None = None,
+        forwarded_by: str | None = None,
     ) -> None:
         self.logger = node.get_logger()
         log = self.logger.warn
@@ -66,7 +71,7 @@ class CameraInputs:
             params["depth_scale"],
             on_frame,
             log,
-            params["downscale"],
+            params["downscale"] if forwarded_by is None else 1.0,
             on_labels if labelled else None,
             cpu=resolve_device(params["device"]).type == "cpu",
         )
@@ -75,13 +80,15 @@ class CameraInputs:
         self.colour_rate = RateMeter()
         qos = input_qos(params["input_qos"], params["input_queue_size"])
         names = ["rgb", "depth", *(["semantic"] if labelled else [])]
+        topic = (lambda t: t) if forwarded_by is None else (lambda t: forwarded_topic(forwarded_by, t))
         for i, name in enumerate(names[:2]):
-            node.create_subscription(Image, f"{name}/image", lambda msg, i=i, n=name: self._image(i, n, msg), qos)
+            node.create_subscription(Image, topic(f"{name}/image"), lambda m, i=i, n=name: self._image(i, n, m), qos)
         if labelled:
-            node.create_subscription(Image, "semantic/image", self._label_image, qos)
-        node.create_subscription(CameraInfo, "rgb/camera_info", self._camera_info, qos)
-        topics = {n: node.resolve_topic_name(f"{n}/image") for n in names}
-        topics["camera_info"] = node.resolve_topic_name("rgb/camera_info")
+            node.create_subscription(Image, topic("semantic/image"), self._label_image, qos)
+        node.create_subscription(CameraInfo, topic("rgb/camera_info"), self._camera_info, qos)
+        topics = {n: node.resolve_topic_name(topic(f"{n}/image")) for n in names}
+        topics["camera_info"] = node.resolve_topic_name(topic("rgb/camera_info"))
+        self._count_gaps = forwarded_by is None
         topics.update({n: node.resolve_topic_name(t) for n, t in (extra_topics or {}).items()})
         self.watch = InputWatch(topics, log, hints, apart=frozenset({"semantic"}))
         self.gaps = {name: StreamGaps() for name in [*names, "camera_info"]}
@@ -110,6 +117,8 @@ class CameraInputs:
         self.assembler.camera_info(msg)
 
     def _count_gap(self, name: str, msg: Any) -> None:
+        if not self._count_gaps:
+            return
         report = self.gaps[name].add(stamp_to_ns(msg.header.stamp))
         if report is not None:
             self._log_loss(name, report)
@@ -177,10 +186,11 @@ class CameraInputs:
         """The input counts for /diagnostics (``pipeline_dropped``: frames the pipeline dropped).
 
         ``frames_in`` counts colour images that arrived; ``frames_lost`` those that never did (gaps in
-        the colour stamps), ``lost[...]`` the same for the other inputs.
+        the colour stamps), ``lost[...]`` the same for the other inputs (neither for forwarded frames,
+        whose gaps are frames the tracker did not accept).
         """
         a = self.assembler
-        return {
+        counts = {
             "frames_in": str(a.colour_in),
             "frames_lost": str(self.gaps["rgb"].lost),
             "frames_dropped": str(pipeline_dropped + a.colour_dropped),
@@ -188,6 +198,9 @@ class CameraInputs:
             "frames_waiting": str(a.frames_waiting),
             **{f"lost[{self.watch.topics[n]}]": str(g.lost) for n, g in self.gaps.items() if n != "rgb"},
         }
+        if not self._count_gaps:
+            counts = {k: v for k, v in counts.items() if k != "frames_lost" and not k.startswith("lost[")}
+        return counts
 
     def sizes(self) -> dict[str, str]:
         """The input and processing sizes for /diagnostics ("n/a" before the first frame)."""

@@ -9,8 +9,9 @@ field), both transient local (latched); ``/diagnostics``. Services:
 ``~/save_map``, ``~/load_map`` (Trigger, file from ``map_path``), ``~/reset`` (Trigger: also
 publishes the empty map), ``~/pause`` (SetBool), ``~/apply_edit`` (Trigger: the edit the ``edit.*``
 parameters describe) and ``~/undo_edit`` (Trigger: revert the last edit and unlock its classes).
-Standalone (``pose_source:=topic``) it subscribes the camera topics and ``tracking_node/pose`` and
-maps frames whose stamps match a pose exactly.
+Standalone (``pose_source:=topic``) it subscribes the camera topics (or, with
+``frame_source:=tracking_node``, the frames the tracker forwards at the processing size) and
+``tracking_node/pose``, and maps frames whose stamps match a pose exactly.
 
 The map outlives the process: autosaves every ``autosave_period_s`` (written in turns with tracking), a
 save when the process is stopped (``save_on_shutdown``, from :meth:`MappingNode.finish`), and a map
@@ -158,6 +159,7 @@ class MappingNode(Node):
             {"pose": "tracking_node/pose"},
             {"pose": "is tracking_node running?"},
             on_labels=lambda stamp_ns, labels: pipeline.submit_labels(stamp_ns, labels, time.monotonic()),
+            forwarded_by="tracking_node" if self.params["frame_source"] == "tracking_node" else None,
         )
         self.create_subscription(PoseStamped, "tracking_node/pose", self._on_pose, output_qos(50))
 
@@ -178,9 +180,17 @@ class MappingNode(Node):
             self._pair()
 
     def _pair(self) -> None:
-        for stamp in [s for s in self._frames if s in self._poses]:
+        """Map each frame whose pose came; let go of those older than the newest pair, which cannot pair now."""
+        paired = [s for s in self._frames if s in self._poses]
+        for stamp in paired:
             self.activity.begin()
             self.pipeline.submit_job(MapJob(self._frames.pop(stamp), c2w=self._poses.pop(stamp)))
+        if paired:  # both streams come in stamp order
+            for stale in [s for s in self._frames if s < paired[-1]]:
+                del self._frames[stale]
+                self.pipeline.count_dropped()
+            for stale in [s for s in self._poses if s < paired[-1]]:
+                del self._poses[stale]  # its frame was not accepted (not forwarded), or was lost on the way
         for queue in (self._frames, self._poses):
             while len(queue) > _PENDING:
                 queue.popitem(last=False)
@@ -204,8 +214,8 @@ class MappingNode(Node):
         self.last_mapped_stamp = tracked.stamp_ns
         self._view = _View(tracked.stamp_ns, np.array(tracked.c2w, dtype=np.float64), self.camera_frame())
         self._map_changed()
-        if self.params["lockstep"]:
-            self.gaussians_out.now()  # a tracker in another process waits for this map
+        if self.params["lockstep"] or (self.camera is not None and self.gaussians_out.count == 0):
+            self.gaussians_out.now()  # a tracker in another process waits for this map (live: for its first)
 
     def _classes_changed(self) -> None:
         """Late labels changed classes: the clouds publish them; the renders wait for the next mapped frame's view."""
@@ -430,10 +440,17 @@ class MappingNode(Node):
         (log.info if outcome.saved else log.error)(f"at shutdown: {outcome.message}")
 
     def close(self) -> None:
-        """Stop autosaving and the workers this node owns."""
+        """Stop autosaving and the workers this node owns; standalone, log the run's frame counts."""
         self.saver.close()
         if self._owns_pipeline:
             self.pipeline.shutdown()
+        if self.camera is not None:
+            st = self.pipeline.stats
+            counts = self.camera.counts(st.dropped_frames)
+            counts["frames_mapped"] = str(st.mapped)
+            counts["jobs_dropped"] = str(st.dropped_jobs)
+            counts["mapping_steps_per_frame"] = f"{st.map_steps_per_frame:.1f}"
+            self.get_logger().info("final counts: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
 
 
 def _loaded(saved: MapFile, path: FilePath, relocalizing: bool) -> str:

@@ -116,6 +116,13 @@ TRACKING = (
         choices=("shared", "topic"),
         read_only=True,
     ),
+    ParamSpec(
+        "forward_frames",
+        False,
+        "publish each accepted frame at the processing size on ~/frames/* (colour, 32FC1 depth, camera_info, "
+        "labels) for a mapping_node on another computer (its frame_source:=tracking_node)",
+        read_only=True,
+    ),
     ParamSpec("path_max_length", 10000, "poses kept in ~/path", bounds=(1, 1000000)),
     ParamSpec(
         "path_rate_hz",
@@ -169,6 +176,14 @@ MAPPING = (
         "shared",
         "'shared' (composed slam_node) or 'topic' (subscribe pose)",
         choices=("shared", "topic"),
+        read_only=True,
+    ),
+    ParamSpec(
+        "frame_source",
+        "camera",
+        "with pose_source:=topic: 'camera' (subscribe the camera topics) or 'tracking_node' (the frames it "
+        "forwards at the processing size, tracking_node/frames/*: far less traffic between computers)",
+        choices=("camera", "tracking_node"),
         read_only=True,
     ),
     ParamSpec(

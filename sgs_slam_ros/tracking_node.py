@@ -4,8 +4,9 @@ Inputs (relative, remappable): ``rgb/image``, ``depth/image``, ``semantic/image`
 ``use_semantics``), ``rgb/camera_info``; standalone with ``map_source:=topic`` it also follows
 ``mapping_node/gaussians``. Outputs: ``~/pose`` (PoseStamped in ``map_frame``), ``~/path``,
 ``/tf`` + ``/tf_static`` (``map -> camera``, or ``map [-> odom] -> base_frame -> camera``),
-``/diagnostics``; service ``~/reset`` (Trigger). The map frame is z-up by default
-(``map_alignment``).
+``/diagnostics``; with ``forward_frames`` the accepted frames at the processing size on
+``~/frames/*`` (:mod:`sgs_slam_ros.forward`); service ``~/reset`` (Trigger). The map frame is z-up
+by default (``map_alignment``).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from sgs_slam_core.slam.system import Slam
 from sgs_slam_ros.activity import Activity
 from sgs_slam_ros.camera_inputs import CameraInputs
 from sgs_slam_ros.diagnostics import OK, WARN, Diagnostics, RateMeter
+from sgs_slam_ros.forward import FrameForwarder
 from sgs_slam_ros.frames import AUTO_DOWNSCALE
 from sgs_slam_ros.messages import path_msg, pose_msg
 from sgs_slam_ros.params import COMMON, TRACKING, ParameterError, declare, slam_config, use_threads
@@ -80,12 +82,16 @@ class TrackingNode(Node):
         self._remote_map_stamp = -1
         self._last_pose_sent = time.monotonic()
         self.reset_listeners: list[Callable[[], None]] = []  # e.g. the composed mapping node's outputs
+        self._standalone = standalone
+        forward = self.params["forward_frames"]
+        self.forwarder = FrameForwarder(self, self.params["use_semantics"]) if forward else None
+        self._forwarded_pose: PoseStamped | None = None  # the pose of the last frame forwarded
         self.pipeline = pipeline = self._pipeline(standalone)
         self.activity = Activity(pipeline.idle)
         pipeline.pose_listeners.append(self._on_pose)
         pipeline.map_listeners.append(lambda *_: self.activity.end())
         self.outputs = RateMeter()
-        on_labels = None if standalone else self._on_labels  # a standalone tracker has no map to label
+        on_labels = None if standalone and not forward else self._on_labels  # a standalone tracker maps nothing
         self.camera = CameraInputs(
             self, self.params, self._on_frame, self.activity, hints=SILENT_HINTS, on_labels=on_labels
         )
@@ -150,7 +156,10 @@ class TrackingNode(Node):
         self.pipeline.submit_frame(frame, time.monotonic())
 
     def _on_labels(self, stamp_ns: int, labels: np.ndarray) -> None:
-        self.pipeline.submit_labels(stamp_ns, labels, time.monotonic())
+        if not self._standalone:
+            self.pipeline.submit_labels(stamp_ns, labels, time.monotonic())
+        if self.forwarder is not None:
+            self.forwarder.labels(stamp_ns, labels, self.camera_frame())
 
     def _report_map_frame(self, choice: MapFrameChoice) -> None:
         """Say how the run's first frame set the map frame (``map_alignment``), as /diagnostics will."""
@@ -205,15 +214,21 @@ class TrackingNode(Node):
         Polled (every 0.5 s at most) while a frame waits. The last pose is then published again once
         a second: a mapper whose subscription was matched only after the first publication (DDS
         discovery under load) would otherwise never map that frame, and both nodes would wait forever.
+        With ``forward_frames`` the mapper maps only the forwarded frames (not failed ones): the last
+        of those is the one to wait for, and it is sent again with its pose.
         """
-        last = self.pipeline.snapshot().last_stamp_ns
+        forwarder = self.forwarder
+        last = self.pipeline.snapshot().last_stamp_ns if forwarder is None else forwarder.last_stamp_ns
         ready = frames_tracked == 0 or last is None or self._remote_map_stamp >= last
         now = time.monotonic()
         if not ready and now - self._last_pose_sent >= _REPUBLISH_S:
             with self._path_lock:
-                last = self.path[-1] if self.path else None
-            if last is not None:
-                self.pose_pub.publish(last)
+                pose = self.path[-1] if self.path else None
+            if forwarder is not None:
+                forwarder.republish()
+                pose = self._forwarded_pose
+            if pose is not None:
+                self.pose_pub.publish(pose)
                 self._last_pose_sent = now
         return ready
 
@@ -228,6 +243,9 @@ class TrackingNode(Node):
         if outcome.map_frame is not None:
             self._report_map_frame(outcome.map_frame)
         msg = pose_msg(outcome.c2w, outcome.stamp_ns, self.map_frame)
+        if self.forwarder is not None and not outcome.failed:  # the mapper pairs it with its pose by stamp
+            self.forwarder.frame(frame, self.camera_frame())
+            self._forwarded_pose = msg
         self.pose_pub.publish(msg)  # while lost: the last tracked pose again (a lockstep player waits for each)
         self.activity.end()
         self._last_pose_sent = time.monotonic()
@@ -276,6 +294,9 @@ class TrackingNode(Node):
         self.camera.reset()
         self.alignment_used = ""
         self._state = "ok"
+        if self.forwarder is not None:
+            self.forwarder.reset()
+            self._forwarded_pose = None
         with self._path_lock:
             self.path.clear()
 
@@ -307,6 +328,7 @@ class TrackingNode(Node):
             "relocalizations": str(st.relocalizations),
             "frames_while_lost": str(st.frames_while_lost),
             "gaussians": str(len(self.pipeline.snapshot().gaussians)),
+            **(self.forwarder.counts() if self.forwarder is not None else {}),
             "silent_inputs": self.camera.silent_names(silent),
             "tf": tf_state if self.tf.available else "off (tf2_msgs missing)",
             "map_alignment": self.alignment_used or f"{self.alignment.value} (chosen at the first frame)",
@@ -320,6 +342,9 @@ class TrackingNode(Node):
         st = self.pipeline.stats
         counts = self.camera.counts(st.dropped_frames)
         counts["frames_tracked"] = str(st.tracked)
+        counts["tracking_ms_per_frame"] = f"{st.tracking_ms_per_frame:.1f}"
+        if self.forwarder is not None:
+            counts.update(self.forwarder.counts())
         if self.pipeline.map_enabled:  # slam_node: this process maps too
             counts["frames_mapped"] = str(st.mapped)
             counts["mapping_steps_per_frame"] = f"{st.map_steps_per_frame:.1f}"

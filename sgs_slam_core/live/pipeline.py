@@ -26,7 +26,8 @@ tracking never waits for labels. A background task (an autosave writing the map)
 :meth:`SlamPipeline.background_turn`: on the CPU the tracker waits for a part as for a mapping
 step, and a part waits for the frame being tracked.
 On CUDA the mapping thread runs on its own stream, beside tracking, and a job ends early when a
-newer one waits and it made ``PREEMPT_FRACTION`` of its steps.
+newer one waits and it made ``PREEMPT_FRACTION`` of its steps; a mapping process of its own on the
+CPU ends a job after one step when a newer one waits.
 Two synchronisations make that safe: the mapping thread finishes its stream's work before ``Slam``
 publishes a map (``Slam.map``'s ``before_publish``), and tracking reads its result back to the host
 before it returns, so no tensor is freed while a kernel of the other thread may still read it.
@@ -103,6 +104,20 @@ class SlamSnapshot:
         return self.codec.decode(semantic, list(self.label_candidates))
 
 
+def _preempt_steps(lockstep: bool, share_cpu: bool, device: torch.device, iterations: int) -> int:
+    """Live: the steps after which a mapping job ends when a newer job waits (0: it never does).
+
+    Beside tracking on its own stream, ``PREEMPT_FRACTION`` of the iterations. A mapping process of
+    its own on the CPU (a mapping_node beside a tracker elsewhere): one, since a step there costs about
+    a frame period and the tracker follows the map, which must take in each new frame it can.
+    """
+    if lockstep or share_cpu:
+        return 0
+    if device.type == "cpu":
+        return 1
+    return math.ceil(PREEMPT_FRACTION * iterations)
+
+
 @dataclass
 class PipelineStats:
     """Counters of what happened to the frames handed over (for /diagnostics and metrics.json)."""
@@ -120,6 +135,7 @@ class PipelineStats:
     tracking_errors: int = 0  # rejected by tracking (bad frame) or failed: no pose
     mapping_errors: int = 0
     map_steps: int = 0  # optimisation steps of the mapping jobs that published a map
+    tracking_s: float = 0.0  # time spent tracking the tracked frames (s)
     errors: int = 0  # tracking_errors + mapping_errors + listeners that raised
     last_error: str = ""
     latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=50))  # arrival -> pose (s)
@@ -133,6 +149,11 @@ class PipelineStats:
         self.relocalizations += int(state == "relocalized")
         self.frames_while_lost += int(state == "lost")
         self.tracking_state = state
+
+    @property
+    def tracking_ms_per_frame(self) -> float:
+        """Mean time tracking took per tracked frame (ms)."""
+        return 1e3 * self.tracking_s / max(self.tracked, 1)
 
     @property
     def map_steps_per_frame(self) -> float:
@@ -188,8 +209,7 @@ class SlamPipeline:
         self._turn_steps = 0  # steps the current job makes before a waiting frame is tracked
         self._map_steps = 0  # steps the current mapping job has made
         self._asked = False  # the current job asked for a step (a failed frame or one not due does not)
-        # live beside tracking: a job with a newer one waiting ends after this many steps (0: it never does)
-        self._preempt_steps = 0 if lockstep or self._share_cpu else math.ceil(PREEMPT_FRACTION * iterations)
+        self._preempt_steps = _preempt_steps(lockstep, self._share_cpu, slam.device, iterations)
         self._threads = []
         if track:
             self._threads.append(threading.Thread(target=self._track_loop, name="sgs-track", daemon=True))
@@ -247,16 +267,21 @@ class SlamPipeline:
 
     def _can_track(self) -> bool:
         if not self.lockstep:
-            if not self.map_enabled or self.slam.frames_processed == 0:
-                return True
-            if self.slam.num_gaussians == 0 and not self._mapping_idle():
-                return False  # the first frame's Gaussians are being made
-            if self._share_cpu:  # never both at once: the last tracked frame's job ends (and publishes) first
-                return not (self._jobs or self._busy["map"] or self._busy["background"])
-            return True
+            return self._can_track_live()
         if self.map_enabled and not self._mapping_idle():
             return False
         return self.ready_to_track is None or self.ready_to_track(self.slam.frames_processed)
+
+    def _can_track_live(self) -> bool:
+        if self.slam.frames_processed == 0:
+            return True
+        if not self.map_enabled:  # the map comes from another process: nothing to track against before it
+            return self.slam.num_gaussians > 0
+        if self.slam.num_gaussians == 0 and not self._mapping_idle():
+            return False  # the first frame's Gaussians are being made
+        if self._share_cpu:  # never both at once: the last tracked frame's job ends (and publishes) first
+            return not (self._jobs or self._busy["map"] or self._busy["background"])
+        return True
 
     def _frame_waiting(self) -> bool:
         """A newer frame waits to be tracked (live: the one being tracked may end early)."""
@@ -293,6 +318,7 @@ class SlamPipeline:
             with self._cv:
                 if outcome is not None:
                     self.stats.tracked += 1
+                    self.stats.tracking_s += outcome.time_s
                     self.stats.tracking_failures += int(outcome.failed)
                     self.stats.count_state(outcome.state)
                     self.stats.latency_s.append(time.monotonic() - received_at)
@@ -380,6 +406,8 @@ class SlamPipeline:
         The job ends early live: on its own stream when a newer job waits and this one made its
         share of steps; on the CPU when a frame waits to be tracked and this job made its turn
         (tracking waits for the job to end, so the next frame meets the map with this frame in it).
+        A mapping process of its own ends its first job after its share too: the tracker elsewhere
+        has no map before it.
         """
         with self._cv:
             if not self._running:
@@ -389,7 +417,10 @@ class SlamPipeline:
                 return False
             if self._share_cpu and self._frames and not self._in_turn():
                 return False
-            if self._preempt_steps and self._jobs and self._map_steps >= self._preempt_steps:
+            # live, beside a tracker that waits: a newer job, or (mapping alone) a tracker elsewhere
+            # that has no map yet and tracks nothing until this job publishes one
+            first_awaited = not self.track_enabled and self.stats.mapped == 0
+            if self._preempt_steps and (self._jobs or first_awaited) and self._map_steps >= self._preempt_steps:
                 return False
             self._map_steps += 1
             return True

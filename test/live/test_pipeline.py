@@ -15,7 +15,7 @@ from sgs_slam_core.config.sections import LiveSettings
 from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.errors import ConfigError, DatasetError, FrameError
 from sgs_slam_core.labels import LabelTable
-from sgs_slam_core.live import SlamPipeline
+from sgs_slam_core.live import MapJob, SlamPipeline
 from sgs_slam_core.metrics import read_tum_trajectory
 from sgs_slam_core.runner.realtime import RealtimeOptions, _Replay, release_times, run_realtime
 from sgs_slam_core.slam.mapper import MapStats
@@ -42,7 +42,7 @@ class GatedSlam:
         self.gate.acquire()
         self.tracked.append(frame.index)
         self.frames_processed += 1
-        return SimpleNamespace(failed=False, index=frame.index, state="ok", lost=False)
+        return SimpleNamespace(failed=False, index=frame.index, state="ok", lost=False, time_s=0.0)
 
     def map(self, frame, tracked, between_iterations=None, before_publish=None):
         self.num_gaussians += 1
@@ -66,7 +66,7 @@ class TimedSlam(GatedSlam):
         time.sleep(0.03)
         self.tracking_now = False
         self.frames_processed += 1
-        return SimpleNamespace(failed=False, index=frame.index, state="ok", lost=False)
+        return SimpleNamespace(failed=False, index=frame.index, state="ok", lost=False, time_s=0.0)
 
     def map(self, frame, tracked, between_iterations=None, before_publish=None):
         self.num_gaussians += 1
@@ -156,6 +156,47 @@ def test_with_mapping_on_its_own_stream_a_job_with_a_newer_one_waiting_ends_afte
         pipeline.shutdown()
 
 
+class RegisteringSlam(TimedSlam):
+    """A mapping process's Slam: frames come with their poses from a tracker elsewhere."""
+
+    def register(self, frame, c2w):
+        return SimpleNamespace(failed=False, index=frame.index, state="ok", lost=False, time_s=0.0)
+
+
+def test_a_mapping_process_on_the_cpu_publishes_its_first_map_at_once_and_takes_in_each_newer_frame():
+    slam = RegisteringSlam()
+    pipeline = SlamPipeline(slam, lockstep=False, track=False, map=True, log=lambda _: None)
+    try:
+        pipeline.submit_job(MapJob(SimpleNamespace(index=0), c2w=np.eye(4)))
+        assert wait_for(lambda: slam.job_steps, 5.0)
+        assert slam.job_steps == [1]  # the tracker elsewhere tracks nothing before this map
+        for i in range(1, 8):  # jobs come faster than 20 steps: a newer one is always waiting
+            pipeline.submit_job(MapJob(SimpleNamespace(index=i), c2w=np.eye(4)))
+            time.sleep(0.01)
+        assert pipeline.wait_idle(10.0)
+        # a job ends one step after a newer one came (beside tracking on a stream: a third, 7 steps)
+        assert min(slam.job_steps[1:-1]) <= 2
+        assert slam.job_steps[-1] == 20  # the last, with nothing waiting, runs on
+    finally:
+        pipeline.shutdown()
+
+
+def test_a_tracking_process_tracks_nothing_before_its_first_map_comes():
+    slam = TimedSlam()
+    pipeline = SlamPipeline(slam, lockstep=False, track=True, map=False, log=lambda _: None)
+    try:
+        pipeline.submit_frame(SimpleNamespace(index=0))  # the first frame sets the map frame
+        assert wait_for(lambda: slam.frames_processed == 1, 5.0)
+        pipeline.submit_frame(SimpleNamespace(index=1))
+        time.sleep(0.3)
+        assert slam.frames_processed == 1  # no map yet: its pose would be a guess
+        slam.num_gaussians = 10  # the mapper's map came (replace_map)
+        pipeline.wake()
+        assert wait_for(lambda: slam.frames_processed == 2, 5.0)
+    finally:
+        pipeline.shutdown()
+
+
 @pytest.mark.parametrize("lockstep", [False, True])
 def test_live_tracking_is_told_when_a_newer_frame_waits(lockstep):
     slam = GatedSlam()
@@ -191,7 +232,7 @@ class SlowMappingSlam(GatedSlam):
 
     def track(self, frame, newer_frame_waiting=None):
         self.frames_processed += 1
-        return SimpleNamespace(failed=False, index=frame.index, state="ok", lost=False)
+        return SimpleNamespace(failed=False, index=frame.index, state="ok", lost=False, time_s=0.0)
 
     def map(self, frame, tracked, between_iterations=None, before_publish=None):
         for _ in range(400):
