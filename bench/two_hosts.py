@@ -214,6 +214,8 @@ def _row(run: int, mode: str, c: dict[str, float], ate_cm: float | None, posed: 
         c["sent"],
         c["frames_in"],
         f"{100 * lost / max(c['sent'], 1):.1f} %",
+        c["frames_tracked"],
+        c.get("tracking_failures", "-"),
         posed,
         "n/a" if ate_cm is None else f"{ate_cm:.2f}",
         mapper,
@@ -270,7 +272,8 @@ def main() -> int:
                 print(rows[-1], flush=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    header = ["run", "nodes", "frames sent", "frames_in", "lost", "posed", "ATE cm", "mapper in / mapped"]
+    header = ["run", "nodes", "frames sent", "frames_in", "lost", "tracked", "failed", "posed", "ATE cm"]
+    header.append("mapper in / mapped")
     table = markdown_table([*header, "MB a->b", "MB b->a", "MB/s"], rows)
     cpus = "each host on a CPU core of its own" if args.pin else "both hosts on every core"
     body = (

@@ -231,7 +231,13 @@ class MappingNode(Node):
         self.gaussians_out.mark()
 
     def publish_renders(self) -> bool:
-        """Render the map from the newest mapped frame's pose; publish colour, semantics, labels, depth."""
+        """Render the map from the newest mapped frame's pose; publish colour, semantics, labels, depth.
+
+        False (nothing rendered) before a frame is mapped and while no one subscribes any of them.
+        """
+        renders = (self.color_pub, self.semantic_pub, self.labels_pub, self.depth_pub, self.render_info_pub)
+        if not any(pub.get_subscription_count() for pub in renders):
+            return False
         snap, view = self.pipeline.snapshot(), self._view
         if view is None or len(snap.gaussians) == 0 or snap.intrinsics is None:
             return False
@@ -263,12 +269,16 @@ class MappingNode(Node):
         return pts
 
     def publish_points(self) -> bool:
-        """Publish ``~/points`` (empty after a reset, so latched viewers clear)."""
+        """Publish ``~/points`` (empty after a reset, so latched viewers clear); False while no one subscribes."""
+        if self.points_pub.get_subscription_count() == 0:
+            return False
         self.points_pub.publish(pointcloud_msg(self.points(), self._stamp(), self.map_frame))
         return True
 
     def publish_gaussians(self) -> bool:
-        """Publish the whole map on ``~/gaussians`` (stamp = the last mapped frame)."""
+        """Publish the whole map on ``~/gaussians`` (stamp = the last mapped frame); False while no one subscribes."""
+        if self.gaussians_pub.get_subscription_count() == 0:
+            return False
         cloud = gaussians_to_cloud(self.pipeline.snapshot().gaussians)
         self.gaussians_pub.publish(pointcloud_msg(cloud, self._stamp(), self.map_frame))
         return True

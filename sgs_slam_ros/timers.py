@@ -26,7 +26,8 @@ def steady_timer(node: Node, period_s: float, callback: Callable[[], None]) -> T
 class Throttled:
     """Calls ``publish`` after :meth:`mark`, at most ``rate_hz`` times a second (0 = never by itself).
 
-    ``publish`` returns whether it published (``count`` counts those).
+    ``publish`` returns whether it published (``count`` counts those); one that did not (no
+    subscriber yet, nothing to show) leaves the request pending for the next tick.
 
     Each :meth:`mark` asks for one publication of the newest state; marks that arrive faster than
     the rate are merged. :meth:`set_rate` applies a new rate at once (a live parameter change).
@@ -59,10 +60,17 @@ class Throttled:
         with self._lock:
             pending, self._pending = self._pending, False
         if pending:
-            self.count += int(self.publish())
+            self._publish()
 
     def now(self) -> None:
-        """Publish immediately (and drop a pending request)."""
+        """Publish immediately (a pending request is served by it)."""
         with self._lock:
             self._pending = False
-        self.count += int(self.publish())
+        self._publish()
+
+    def _publish(self) -> None:
+        published = self.publish()
+        self.count += int(published)
+        if not published:
+            with self._lock:
+                self._pending = True

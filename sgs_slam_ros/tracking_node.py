@@ -342,6 +342,7 @@ class TrackingNode(Node):
         st = self.pipeline.stats
         counts = self.camera.counts(st.dropped_frames)
         counts["frames_tracked"] = str(st.tracked)
+        counts["tracking_failures"] = str(st.tracking_failures)
         counts["tracking_ms_per_frame"] = f"{st.tracking_ms_per_frame:.1f}"
         if self.forwarder is not None:
             counts.update(self.forwarder.counts())
