@@ -365,7 +365,7 @@ def use_threads(values: NodeParams) -> None:
 def slam_config(values: NodeParams) -> SlamConfig:
     """The core config from the node's parameters (preset, file, overrides, device, and a tracker's map frame).
 
-    Live nodes (not ``lockstep``) take the config's live variant (``live.tracking_method``).
+    Live nodes (not ``lockstep``) take the config's live variant (``live.overlay``).
     """
     overrides = [*values["overrides"], f"device={values['device']}"]
     if "map_alignment" in values:  # the tracking node's parameters choose the map frame

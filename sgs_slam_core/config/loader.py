@@ -65,18 +65,8 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:  # noqa: PLR0911, PLR0912 -
             except ConfigError as err:
                 errors.append(str(err))
         raise ConfigError(errors[0] if len(errors) == 1 else f"{where}: {value!r} matches none of {_type_name(tp)}")
-    if origin in (tuple, list):
-        if not isinstance(value, list | tuple):
-            raise ConfigError(f"{where}: expected a list, got {type(value).__name__}")
-        args = get_args(tp)
-        if origin is tuple and args and args[-1] is not Ellipsis:
-            if len(value) != len(args):
-                raise ConfigError(f"{where}: expected {len(args)} values, got {len(value)}")
-            items = [_coerce(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True))]
-        else:
-            item_tp = args[0] if args else Any
-            items = [_coerce(v, item_tp, f"{where}[{i}]") for i, v in enumerate(value)]
-        return tuple(items) if origin is tuple else items
+    if origin in (dict, tuple, list):
+        return _coerce_container(value, tp, where)
     if tp is Any:
         return value
     if tp is bool:
@@ -103,6 +93,26 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:  # noqa: PLR0911, PLR0912 -
     raise ConfigError(f"{where}: unsupported config type {_type_name(tp)}")
 
 
+def _coerce_container(value: Any, tp: Any, where: str) -> Any:
+    """A mapping of names (``dict[str, Any]``), a list or a tuple, items checked against their types."""
+    origin = get_origin(tp)
+    if origin is dict:
+        if not isinstance(value, Mapping) or not all(isinstance(k, str) for k in value):
+            raise ConfigError(f"{where}: expected a mapping of names, got {value!r}")
+        return {k: dict(v) if isinstance(v, Mapping) else v for k, v in value.items()}
+    if not isinstance(value, list | tuple):
+        raise ConfigError(f"{where}: expected a list, got {type(value).__name__}")
+    args = get_args(tp)
+    if origin is tuple and args and args[-1] is not Ellipsis:
+        if len(value) != len(args):
+            raise ConfigError(f"{where}: expected {len(args)} values, got {len(value)}")
+        items = [_coerce(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True))]
+    else:
+        item_tp = args[0] if args else Any
+        items = [_coerce(v, item_tp, f"{where}[{i}]") for i, v in enumerate(value)]
+    return tuple(items) if origin is tuple else items
+
+
 def build(cls: type[T], data: Mapping[str, Any], where: str = "") -> T:
     """Instantiate dataclass ``cls`` from a mapping; missing keys keep their defaults."""
     if not dataclasses.is_dataclass(cls):
@@ -113,13 +123,25 @@ def build(cls: type[T], data: Mapping[str, Any], where: str = "") -> T:
     if unknown:
         prefix = f"{where}." if where else ""
         raise ConfigError(f"unknown config key {prefix}{unknown[0]} (known at this level: {', '.join(sorted(known))})")
-    kwargs = {k: _coerce(v, hints[k], f"{where}.{k}" if where else k) for k, v in data.items()}
+    defaults = {f.name: f for f in config_fields(cls)}
+    kwargs = {
+        k: _coerce(_over_default(defaults[k], v, hints[k]), hints[k], f"{where}.{k}" if where else k)
+        for k, v in data.items()
+    }
     try:
         return cls(**kwargs)
     except ConfigError as err:
         raise ConfigError(f"{where}: {err}" if where else str(err)) from err
     except (TypeError, ValueError) as err:
         raise ConfigError(f"{where or cls.__name__}: {err}") from err
+
+
+def _over_default(f: dataclasses.Field[Any], value: Any, tp: Any) -> Any:
+    """A mapping given for a mapping-typed key merges into the key's default, as the layers merge."""
+    if get_origin(tp) is not dict or not isinstance(value, Mapping):
+        return value
+    default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+    return merge(default, value) if isinstance(default, Mapping) else value
 
 
 def config_fields(cls: Any) -> list[dataclasses.Field[Any]]:

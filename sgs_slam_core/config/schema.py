@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
-from typing import Literal
+from dataclasses import dataclass, field, is_dataclass, replace
+from typing import Any, Literal
 
+from sgs_slam_core.config.loader import build, config_fields, config_to_dict, merge
 from sgs_slam_core.config.sections import (
     DensifySettings,
     FeatureSettings,
@@ -51,37 +52,31 @@ class SlamConfig:
     eval_every: int = 5
 
     def for_live(self) -> SlamConfig:
-        """This config as live runs use it: the ``live`` section's replacements applied.
+        """This config as live runs use it: ``live.overlay``'s keys in place of lockstep's.
 
-        ``live.tracking_method`` / ``live.mapping_every`` / ``live.refresh_labels_keyframes_only``
-        replace ``tracking.method`` / ``mapping.every`` / ``mapping.refresh_labels_keyframes_only``
-        and ``live.mapping_weight_color`` / ``live.densify_depth_error_factor`` replace
-        ``mapping.weight_color`` / ``densify.depth_error_factor`` (each, when null, leaves its
-        setting as it is); ``live.geometry_lr_scale`` multiplies the mapping's centre and size
-        learning rates.
+        Then ``live.geometry_lr_scale`` multiplies the mapping's centre and size learning rates.
         """
-        config, live = self, self.live
-        if live.tracking_method is not None and live.tracking_method != config.tracking.method:
-            config = replace(config, tracking=replace(config.tracking, method=live.tracking_method))
-        mapping = config.mapping
-        if live.mapping_every is not None:
-            mapping = replace(mapping, every=live.mapping_every)
-        if live.refresh_labels_keyframes_only is not None:
-            mapping = replace(mapping, refresh_labels_keyframes_only=live.refresh_labels_keyframes_only)
-        if live.geometry_lr_scale != 1.0:
-            scale = live.geometry_lr_scale
-            mapping = replace(mapping, lr_means=mapping.lr_means * scale, lr_scales=mapping.lr_scales * scale)
-        if live.mapping_weight_color is not None:
-            mapping = replace(mapping, weight_color=live.mapping_weight_color)
-        if mapping != config.mapping:
-            config = replace(config, mapping=mapping)
-        if live.densify_depth_error_factor is not None:
-            densify = replace(config.densify, depth_error_factor=live.densify_depth_error_factor)
-            config = replace(config, densify=densify)
+        config = replace(self, **self._overlaid_sections()) if self.live.overlay else self
+        scale = self.live.geometry_lr_scale
+        if scale != 1.0:
+            m = config.mapping
+            config = replace(config, mapping=replace(m, lr_means=m.lr_means * scale, lr_scales=m.lr_scales * scale))
         return config
+
+    def _overlaid_sections(self) -> dict[str, Any]:
+        """Each section ``live.overlay`` names, with its keys in place (validated as the section is)."""
+        sections = {f.name: getattr(self, f.name) for f in config_fields(self)}
+        out = {}
+        for name, values in self.live.overlay.items():
+            current = sections.get(name)
+            if name == "live" or not is_dataclass(current):
+                raise ConfigError(f"live.overlay.{name}: not a config section ({', '.join(sorted(sections))})")
+            out[name] = build(type(current), merge(config_to_dict(current), values), f"live.overlay.{name}")
+        return out
 
     def __post_init__(self) -> None:
         if self.seed < 0:
             raise ConfigError(f"seed must be >= 0, got {self.seed}")
         if self.eval_every < 1:
             raise ConfigError(f"eval_every must be >= 1, got {self.eval_every}")
+        self._overlaid_sections()  # a bad live overlay fails where the config is made, not when a live run starts

@@ -6,7 +6,7 @@ Defaults are SGS-SLAM's Replica values (paper supplementary and released config)
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 from sgs_slam_core.errors import ConfigError, ShapeError
 from sgs_slam_core.geometry.depth_noise import DepthNoise
@@ -313,8 +313,8 @@ class MappingSettings:
             also narrows splats the map needs (1.5 px loses accuracy at 160x120).
         refresh_labels: after mapping, set every Gaussian's class id from its semantic features
             (``semantic.fusion: votes``: reset the features of Gaussians the votes give another class).
-        refresh_labels_keyframes_only: only after mapping a frame that becomes a keyframe (live runs:
-            ``live.refresh_labels_keyframes_only``). The Gaussians a frame adds take their class from
+        refresh_labels_keyframes_only: only after mapping a frame that becomes a keyframe (on by
+            default in live runs, ``live.overlay``). The Gaussians a frame adds take their class from
             its labels either way; older ones follow within ``keyframes.every`` frames.
     """
 
@@ -548,11 +548,28 @@ class GuardSettings:
             raise ConfigError(f"guard.relocalize_min_inliers must be >= 6, got {self.relocalize_min_inliers}")
 
 
+def _default_live_overlay() -> dict[str, Any]:
+    return {"tracking": {"method": "gauss_newton"}, "mapping": {"refresh_labels_keyframes_only": True}}
+
+
 @dataclass(frozen=True)
 class LiveSettings:
     """Live operation (``--realtime``, the ROS nodes); lockstep runs ignore it.
 
     Attributes:
+        overlay: config keys live runs use in place of lockstep's, by section (any key of any
+            section: ``--set live.overlay.mapping.weight_color=0.25``; layers merge into the
+            default). By default live runs track with Gauss-Newton, which renders the map twice a
+            frame where Adam renders it at every step, so it keeps up with a camera; and re-decode
+            every Gaussian's class after mapping a keyframe only, since the re-decoding costs a
+            mapping job about a step's time on a CPU. Live, a frame gets a few mapping steps where
+            lockstep makes ``mapping.iterations``: the ``tum`` preset weighs the colour term less
+            (``mapping.weight_color`` 0.25), spending them on the depth the tracker aligns to, and
+            adds Gaussians where the measured depth lies in front of the map by 20 (not 50) times
+            the median error (``densify.depth_error_factor``), since a few steps cannot pull a
+            mapped surface onto geometry that appeared in front of it. ``mapping.every: N``
+            optimises the map on every n-th tracked frame only, leaving the tracker more of the
+            machine (every frame is still densified).
         min_map_steps: on the CPU, where tracking and mapping take turns, the least mean mapping
             steps of a frame's job (over the last ten jobs that optimised): a job below it makes the
             steps it owes even while the next frame waits, which may then be dropped (0 = none:
@@ -560,40 +577,18 @@ class LiveSettings:
             alone can fill the frame period and the map then goes without a step for hundreds of
             frames, floors of 0.1 to 1 cost frames and did not make the trajectory measurably
             better run for run (BENCHMARKS.md); a steady map at fewer frames takes 1 or 2.
-        tracking_method: the tracker live runs use in place of ``tracking.method`` (null: that
-            one). Gauss-Newton by default: it renders the map twice a frame where Adam renders it
-            at every step, so it keeps up with a camera; lockstep runs keep ``tracking.method``.
-        mapping_every: live runs optimise the map on every n-th tracked frame in place of
-            ``mapping.every`` (null: that one); every frame is still densified, and mapping steps
-            fill the time between frames either way. Fewer mapping jobs leave the tracker more of
-            the machine: more frames tracked, fewer mapping steps.
-        refresh_labels_keyframes_only: live runs re-decode every Gaussian's class after mapping a
-            keyframe only, in place of ``mapping.refresh_labels_keyframes_only`` (null: that one): the
-            re-decoding costs a mapping job about a step's time on a CPU.
-        geometry_lr_scale: live runs multiply ``mapping.lr_means`` and ``mapping.lr_scales`` by this
-            (1 = lockstep's rates). Live on a CPU a frame gets a few mapping steps where lockstep
-            makes ``mapping.iterations``; centres and sizes that move further per step can still
-            fit noisy depth in those few (the ``tum`` preset takes 3).
-        mapping_weight_color: live runs weigh the mapping loss's colour term by this in place of
-            ``mapping.weight_color`` (null: that one). In a few steps a frame, a lower colour weight
-            spends them on the depth the tracker aligns to (the ``tum`` preset: 0.25).
+        geometry_lr_scale: live runs multiply ``mapping.lr_means`` and ``mapping.lr_scales`` (after
+            the overlay) by this (1 = lockstep's rates): centres and sizes that move further per step
+            can still fit noisy depth in a few steps a frame (the ``tum`` preset takes 3).
         label_buffer_s: when label images come apart from their frames (a segmenter's stream,
             ``--label-rate-hz``), how long mapped views are kept for theirs (s of stamps; a view is
             about 100 kB at 160x120, 1.5 MB at 640x480). A label image that finds no view is counted
             as unmatched.
-        densify_depth_error_factor: live runs add Gaussians where the rendered depth lies behind the
-            measured by this times the median error, in place of ``densify.depth_error_factor``
-            (null: that one). A few steps a frame cannot pull a mapped surface onto geometry that
-            appeared in front of it; new Gaussians there can (the ``tum`` preset: 20).
     """
 
+    overlay: dict[str, Any] = field(default_factory=_default_live_overlay, hash=False)
     min_map_steps: float = 0.0
-    tracking_method: TrackerName | None = "gauss_newton"
-    mapping_every: int | None = None
-    refresh_labels_keyframes_only: bool | None = True
     geometry_lr_scale: float = 1.0
-    mapping_weight_color: float | None = None
-    densify_depth_error_factor: float | None = None
     label_buffer_s: float = 3.0
 
     def __post_init__(self) -> None:
@@ -601,11 +596,8 @@ class LiveSettings:
             raise ConfigError(f"live.label_buffer_s must be in [0, 60] s, got {self.label_buffer_s}")
         if not self.geometry_lr_scale > 0:
             raise ConfigError(f"live.geometry_lr_scale must be > 0, got {self.geometry_lr_scale}")
-        if self.mapping_weight_color is not None and not self.mapping_weight_color >= 0:
-            raise ConfigError(f"live.mapping_weight_color must be >= 0 or null, got {self.mapping_weight_color}")
-        if self.densify_depth_error_factor is not None:
-            _positive("live", densify_depth_error_factor=self.densify_depth_error_factor)
-        if self.mapping_every is not None and self.mapping_every < 1:
-            raise ConfigError(f"live.mapping_every must be >= 1 or null, got {self.mapping_every}")
         if not 0 <= self.min_map_steps <= 100:
             raise ConfigError(f"live.min_map_steps must be in [0, 100], got {self.min_map_steps}")
+        for name, values in self.overlay.items():
+            if name == "live" or not isinstance(values, dict):
+                raise ConfigError(f"live.overlay.{name}: the overlay holds config sections and their keys")

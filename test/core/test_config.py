@@ -85,30 +85,31 @@ def test_live_runs_swap_in_the_live_tracker_and_lockstep_runs_keep_the_presets()
     preset = load_config("replica")
     assert preset.tracking.method == "adam" and preset.for_live().tracking.method == "gauss_newton"
     assert preset.for_live().tracking.adam == preset.tracking.adam  # the rest of the section stays
-    keep = load_config("replica", overrides=["live.tracking_method=null", "live.refresh_labels_keyframes_only=null"])
-    assert keep.for_live() is keep
-    assert load_config("replica", overrides=["live.tracking_method=adam"]).for_live().tracking.method == "adam"
+    keep = load_config("replica", overrides=["live.overlay.tracking.method=adam"])
+    assert keep.for_live().tracking == keep.tracking
     for name in ("tum", "synthetic"):  # Gauss-Newton in lockstep as well: nothing to swap
         config = load_config(name)
         assert config.tracking.method == "gauss_newton" and config.for_live().tracking == config.tracking
-    with pytest.raises(ConfigError, match=r"live\.tracking_method"):
-        load_config("tum", overrides=["live.tracking_method=lbfgs"])
+    with pytest.raises(ConfigError, match=r"live\.overlay\.tracking\.method"):
+        load_config("tum", overrides=["live.overlay.tracking.method=lbfgs"])
 
 
-def test_live_runs_re_decode_classes_after_keyframes_only():
-    config = load_config("synthetic")
-    assert not config.mapping.refresh_labels_keyframes_only and config.for_live().mapping.refresh_labels_keyframes_only
-    keep = load_config("synthetic", overrides=["live.refresh_labels_keyframes_only=null"])
-    assert not keep.for_live().mapping.refresh_labels_keyframes_only
-
-
-def test_live_runs_may_map_fewer_frames_than_lockstep_runs():
-    config = load_config("synthetic", overrides=["live.mapping_every=5"])
-    assert config.mapping.every == 1 and config.for_live().mapping.every == 5
-    assert config.for_live().mapping.iterations == config.mapping.iterations
-    assert load_config("synthetic").for_live().mapping.every == 1  # null: mapping.every
-    with pytest.raises(ConfigError, match=r"live\.mapping_every"):
-        load_config("synthetic", overrides=["live.mapping_every=0"])
+def test_the_live_overlay_takes_any_key_of_any_section_and_merges_into_its_default():
+    config = load_config("synthetic", overrides=["live.overlay.mapping.every=5", "live.overlay.guard.lost_after=7"])
+    live = config.for_live()
+    assert (config.mapping.every, live.mapping.every) == (1, 5) and live.guard.lost_after == 7
+    assert live.mapping.iterations == config.mapping.iterations  # the rest of the section stays
+    assert live.tracking.method == "gauss_newton" and live.mapping.refresh_labels_keyframes_only  # defaults kept
+    assert not config.mapping.refresh_labels_keyframes_only
+    for bad, where in (
+        ("live.overlay.mapping.every=0", r"live\.overlay\.mapping"),
+        ("live.overlay.mapping.no_such_key=1", r"live\.overlay\.mapping\.no_such_key"),
+        ("live.overlay.no_such_section.key=1", r"live\.overlay\.no_such_section"),
+        ("live.overlay.seed=3", r"live\.overlay\.seed"),
+        ("live.overlay.live.min_map_steps=1", r"live\.overlay\.live"),
+    ):
+        with pytest.raises(ConfigError, match=where):
+            load_config("synthetic", overrides=[bad])
 
 
 def test_live_runs_move_the_maps_geometry_further_per_step():
@@ -121,11 +122,13 @@ def test_live_runs_move_the_maps_geometry_further_per_step():
         lockstep.lr_opacities,
         lockstep.iterations,
     )
-    others = ["live.refresh_labels_keyframes_only=null", "live.mapping_weight_color=null"]  # those aside
-    same = load_config("tum", overrides=["live.geometry_lr_scale=1", *others])
-    assert same.for_live().mapping == same.mapping
-    synthetic = load_config("synthetic", overrides=others)
-    assert synthetic.for_live().mapping == synthetic.mapping  # 1 by default
+    same = load_config("tum", overrides=["live.geometry_lr_scale=1"])
+    assert (same.for_live().mapping.lr_means, same.for_live().mapping.lr_scales) == (
+        same.mapping.lr_means,
+        same.mapping.lr_scales,
+    )
+    synthetic = load_config("synthetic")
+    assert synthetic.for_live().mapping.lr_means == synthetic.mapping.lr_means  # 1 by default
     for bad in ("0", "-1"):
         with pytest.raises(ConfigError, match=r"live\.geometry_lr_scale"):
             load_config("tum", overrides=[f"live.geometry_lr_scale={bad}"])
@@ -138,13 +141,11 @@ def test_live_runs_spend_their_few_mapping_steps_on_depth():
     assert (config.densify.depth_error_factor, live.densify.depth_error_factor) == (50.0, 20.0)
     assert live.mapping.weight_depth == config.mapping.weight_depth
     assert live.densify == replace(config.densify, depth_error_factor=20.0)  # nothing else of densify
-    unset = load_config("tum", overrides=["live.mapping_weight_color=null", "live.densify_depth_error_factor=null"])
-    assert unset.for_live().mapping.weight_color == 0.5 and unset.for_live().densify == unset.densify
-    synthetic = load_config("synthetic")  # null by default: lockstep's
+    synthetic = load_config("synthetic")  # not in the default overlay: lockstep's
     assert synthetic.for_live().densify == synthetic.densify
     assert synthetic.for_live().mapping.weight_color == synthetic.mapping.weight_color
-    for bad in ("live.mapping_weight_color=-0.1", "live.densify_depth_error_factor=0"):
-        with pytest.raises(ConfigError, match=bad.split("=")[0].replace(".", r"\.")):
+    for bad in ("live.overlay.mapping.weight_color=-0.1", "live.overlay.densify.depth_error_factor=0"):
+        with pytest.raises(ConfigError, match=r"live\.overlay\."):
             load_config("tum", overrides=[bad])
 
 

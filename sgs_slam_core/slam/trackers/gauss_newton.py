@@ -42,7 +42,7 @@ __all__ = ["GaussNewtonTracker"]
 _LUMA = (0.299, 0.587, 0.114)  # ITU-R BT.601 weights of R, G, B in the intensity
 # Times the map is rendered and the frame aligned to that rendering, each from the last result; one
 # more render judges the result (the Adam tracker's loss, for the guard). One: with the judging
-# render, two renders a frame, so live runs keep up with a camera (``live.tracking_method``).
+# render, two renders a frame, so live runs keep up with a camera (``live.overlay``).
 RENDERS = 1
 # The colour term aligns the frame's ``intensity`` (one channel, BT.601 luma) or ``rgb`` (three).
 COLOR_CHANNELS: Literal["intensity", "rgb"] = "intensity"
