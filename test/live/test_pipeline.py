@@ -188,8 +188,7 @@ def test_a_tracking_process_tracks_nothing_before_its_first_map_comes():
         pipeline.submit_frame(SimpleNamespace(index=0))  # the first frame sets the map frame
         assert wait_for(lambda: slam.frames_processed == 1, 5.0)
         pipeline.submit_frame(SimpleNamespace(index=1))
-        time.sleep(0.3)
-        assert slam.frames_processed == 1  # no map yet: its pose would be a guess
+        assert not wait_for(lambda: slam.frames_processed > 1, 0.3)  # no map yet: its pose would be a guess
         slam.num_gaussians = 10  # the mapper's map came (replace_map)
         pipeline.wake()
         assert wait_for(lambda: slam.frames_processed == 2, 5.0)
@@ -287,8 +286,7 @@ def test_a_reset_never_maps_a_frame_tracked_before_it():
         assert publishing.wait(5.0)  # frame 0 is tracked; its pose is being published
         resetter = threading.Thread(target=pipeline.reset)
         resetter.start()
-        time.sleep(0.2)
-        assert slam.resets == 0  # the reset waits for the hand-over
+        assert not wait_for(lambda: slam.resets, 0.2)  # the reset waits for the hand-over
         release.set()
         resetter.join(5.0)
         assert slam.resets == 1 and pipeline.wait_idle(5.0)
