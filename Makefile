@@ -52,9 +52,9 @@ lint: setup
 test: lint
 	$(PY) -m pytest
 
-# the edit-run loop: everything but the tests that start rclpy nodes (no ROS processes, no colcon): under 2 min
+# the edit-run loop: the unit tests (no rclpy nodes, no colcon, no end-to-end runs): under 2 min
 test-fast: setup
-	$(PY) -m pytest -q -m "not ros"
+	$(PY) -m pytest -q -m "not ros and not slow"
 
 demo: setup
 	$(VENV)/bin/sgs-slam demo

@@ -5,6 +5,8 @@ import sys
 
 import pytest
 
+pytestmark = pytest.mark.slow  # fresh interpreters: left out of make test-fast
+
 CHECK = """
 import sys, importlib
 for name in {modules!r}:

@@ -23,6 +23,8 @@ from ..conftest import FAST_SLAM
 from ..datasets.test_replica_scannet import scannet_scene, sgs_layout  # noqa: F401 - fixture
 from ..datasets.test_tum import write_tum
 
+pytestmark = pytest.mark.slow  # end to end: left out of make test-fast
+
 
 def decoded_with_mcap(bag):
     out = {}

@@ -15,6 +15,8 @@ from sgs_slam_core.datasets import open_dataset
 
 from ..conftest import FAST_SLAM
 
+pytestmark = pytest.mark.slow  # end to end: left out of make test-fast
+
 
 def test_profile_breaks_frames_down_by_the_pipeline_labels(tiny_scene):
     config = load_config("synthetic", overrides=[*FAST_SLAM, "device=cpu", "tracking.method=adam"])  # its labels

@@ -15,6 +15,8 @@ from sgs_slam_core.metrics import read_tum_trajectory
 
 from ..conftest import FAST_SLAM
 
+pytestmark = pytest.mark.slow  # end to end: left out of make test-fast
+
 KEYS = ("frames", "ate_rmse_m", "ate_mean_m", "psnr_db", "ssim", "depth_l1_m", "miou", "miou_paper", "fps",
         "track_ms_per_frame", "map_ms_per_frame", "num_gaussians", "peak_memory_mb", "tracking_failures", "gaussian_mb",
         "keyframes", "keyframe_mb", "keyframes_evicted")  # fmt: skip

@@ -20,6 +20,8 @@ from sgs_slam_core.metrics import ConfusionMatrix
 
 from ..conftest import FAST_SLAM
 
+pytestmark = pytest.mark.slow  # end to end: left out of make test-fast
+
 
 def halves() -> np.ndarray:  # [20, 40]: class 3 on the left, 7 on the right, one class-5 square inside the left
     labels = np.full((20, 40), 3, np.int32)

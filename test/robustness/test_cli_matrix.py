@@ -42,6 +42,8 @@ from .inputs import (
     tum_latin1,
 )
 
+pytestmark = pytest.mark.slow  # end to end: left out of make test-fast
+
 Patch = Callable[[Env, pytest.MonkeyPatch], None]
 # what a read-only folder says: root ignores permissions, so there it is faked as a read-only mount
 READ_ONLY = "Read-only file system" if os.geteuid() == 0 else "Permission denied"

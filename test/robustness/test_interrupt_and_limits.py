@@ -19,6 +19,8 @@ from sgs_slam_core.datasets.base import RecordDataset
 from sgs_slam_core.mapio import load_map
 from sgs_slam_core.metrics import read_tum_trajectory
 
+pytestmark = pytest.mark.slow  # end to end: left out of make test-fast
+
 FAST = ("--quiet", "--set", "tracking.adam.iterations=3", "--set", "mapping.iterations=3")
 
 

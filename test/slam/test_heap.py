@@ -11,6 +11,8 @@ import pytest
 
 from sgs_slam_core.slam.heap import release_free_heap
 
+pytestmark = pytest.mark.slow  # subprocesses and 200 MB of heap: left out of make test-fast
+
 
 def _rss_mb() -> float:
     return int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20

@@ -21,6 +21,8 @@ from sgs_slam_core.slam.system import Slam
 
 from .views import poses, room_frame
 
+pytestmark = pytest.mark.slow  # end to end: left out of make test-fast
+
 
 def test_failures_in_a_row_lose_the_camera_until_it_is_relocalized():
     guard = TrackingGuard(GuardSettings(lost_after=2))

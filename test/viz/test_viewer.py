@@ -20,6 +20,8 @@ from sgs_slam_core.runner import run_offline
 from sgs_slam_core.viz import ViewerOptions, ViewerSettings, open_viewer
 from sgs_slam_core.viz.viewer import StreamingViewer
 
+pytestmark = pytest.mark.slow  # end to end: left out of make test-fast
+
 rerun_chunk = pytest.importorskip("rerun.chunk", reason="rerun-sdk (extra 'viewer') is not installed")
 pytest.importorskip("foxglove", reason="foxglove-sdk (extra 'viewer') is not installed")
 
