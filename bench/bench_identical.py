@@ -139,7 +139,8 @@ def main() -> int:
 
     python = sys.executable
     work = args.work or Path(tempfile.mkdtemp(prefix="identical-"))
-    cases = [c for c in make_inputs(work, args.tum, python) if not args.only or c.name in args.only]
+    tum = args.tum.resolve() if args.tum else None  # each side runs in its own checkout: a relative path breaks there
+    cases = [c for c in make_inputs(work, tum, python) if not args.only or c.name in args.only]
     sides = {
         "compiled": (KernelPath(), KernelPath()),
         "reference": (
