@@ -11,28 +11,29 @@ from sgs_slam_core.datasets import open_dataset
 pytestmark = pytest.mark.ros
 
 
-def test_every_frame_crosses_to_the_other_host_with_the_shipped_settings(tiny_scene, tmp_path):
+@pytest.fixture
+def tiny_bag(tiny_scene, tmp_path):
+    """The tiny scene as an uncompressed bag, where two hosts can be made (skipped with the reason otherwise)."""
     why = unavailable()
     if why is not None:
         pytest.skip(f"two hosts on one machine: {why}")
     bag = tmp_path / "bag"
     convert(open_dataset(tiny_scene), bag, compress=False)
+    return bag
+
+
+def test_every_frame_crosses_to_the_other_host_with_the_shipped_settings(tiny_bag):
     with TwoHosts() as hosts:
-        counts = play_across(hosts, bag, ["preset:=synthetic", "use_semantics:=false"], REMAPS, timeout_s=180.0)
+        counts = play_across(hosts, tiny_bag, ["preset:=synthetic", "use_semantics:=false"], REMAPS, timeout_s=180.0)
     assert counts["sent"] == 12
     assert counts["frames_in"] == 12 and counts["frames_lost"] == 0, counts  # none lost between the hosts
     assert counts["frames_tracked"] + counts["frames_dropped"] + counts["frames_rejected"] == 12, counts
 
 
-def test_the_tracker_forwards_its_frames_to_a_mapper_on_the_other_host(tiny_scene, tmp_path):
-    why = unavailable()
-    if why is not None:
-        pytest.skip(f"two hosts on one machine: {why}")
-    bag = tmp_path / "bag"
-    convert(open_dataset(tiny_scene), bag, compress=False)
+def test_the_tracker_forwards_its_frames_to_a_mapper_on_the_other_host(tiny_bag):
     params = ["preset:=synthetic", "use_semantics:=false", "downscale:=2.0"]
     with TwoHosts() as hosts:
-        counts = play_across(hosts, bag, params, REMAPS, timeout_s=180.0, split=True)
+        counts = play_across(hosts, tiny_bag, params, REMAPS, timeout_s=180.0, split=True)
     assert counts["sent"] == 12 and counts["frames_in"] == 12, counts  # camera -> tracker, on host a
     forwarded = counts["frames_forwarded"]
     assert forwarded >= 2, counts  # the first frame, and frames tracked against the map that came back
