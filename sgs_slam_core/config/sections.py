@@ -549,7 +549,11 @@ class GuardSettings:
 
 
 def _default_live_overlay() -> dict[str, Any]:
-    return {"tracking": {"method": "gauss_newton"}, "mapping": {"refresh_labels_keyframes_only": True}}
+    return {
+        "tracking": {"method": "gauss_newton"},
+        "mapping": {"refresh_labels_keyframes_only": True},
+        "semantic": {"fusion": "votes"},
+    }
 
 
 @dataclass(frozen=True)
@@ -562,7 +566,9 @@ class LiveSettings:
             default). By default live runs track with Gauss-Newton, which renders the map twice a
             frame where Adam renders it at every step, so it keeps up with a camera; and re-decode
             every Gaussian's class after mapping a keyframe only, since the re-decoding costs a
-            mapping job about a step's time on a CPU. Live, a frame gets a few mapping steps where
+            mapping job about a step's time on a CPU; and make a Gaussian's class the majority of
+            the labelled views (``semantic.fusion: votes``), since live labels are a segmenter's:
+            few (a few a second), late, and flickering. Live, a frame gets a few mapping steps where
             lockstep makes ``mapping.iterations``: the ``tum`` preset weighs the colour term less
             (``mapping.weight_color`` 0.25), spending them on the depth the tracker aligns to, and
             adds Gaussians where the measured depth lies in front of the map by 20 (not 50) times

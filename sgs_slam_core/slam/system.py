@@ -305,11 +305,10 @@ class Slam:
         frame = Frame(view.rgb, view.depth_m, view.intrinsics, labels, view.stamp_ns, None, view.index)
         self._see_labels(frame)
         data = self._frame_tensors(frame, view.index)
+        w2c = torch.as_tensor(view.w2c, dtype=torch.float32, device=self.device)
+        gaussians, _ = label_unlabelled(self.gaussians, data, w2c)  # votes too: no Gaussian keeps zero features
         if self.votes:
-            gaussians = self._voted(self.gaussians, data, view.w2c)
-        else:
-            w2c = torch.as_tensor(view.w2c, dtype=torch.float32, device=self.device)
-            gaussians, _ = label_unlabelled(self.gaussians, data, w2c)
+            gaussians = self._voted(gaussians, data, view.w2c)
         keyframe = self.keyframes.attach_labels(view.index, labels)
         if not keyframe and not self.keyframes.labelled_near(view.index, self.config.keyframes.every):
             # labels come rarer than keyframes: a labelled view supervises later windows' semantics

@@ -135,6 +135,29 @@ def test_unlabelled_gaussians_the_view_sees_at_their_depth_take_its_class():
     assert torch.equal(out.semantics[1:], g.semantics[1:])
 
 
+def test_unlabelled_gaussians_beside_the_surface_take_the_class_of_the_nearest_measured_point():
+    codec = SemanticCodec(SemanticSettings(), LabelTable.nyu40())
+    # the surface at 1 m; a pixel's footprint there is 5 cm (fx 20), the reach three of them
+    points = torch.tensor(
+        [
+            [0.0, 0.0, 1.1],  # 10 cm behind the surface: beyond the depth test, within reach
+            [0.0, 0.0, 1.3],  # 30 cm behind it: out of reach (a hidden surface), stays unlabelled
+            [0.25, 0.0, 1.1],  # in front of the right half: takes its class 5
+        ]
+    )
+    g = _gaussians(points, [0, 0, 0], codec)
+    lab = labels(3)
+    lab[:, 12:] = 5
+    data = FrameTensors.from_arrays(
+        0, K, np.zeros((12, 16, 3), np.uint8), np.ones((12, 16), np.float32), lab, codec, torch.device("cpu")
+    )
+    out, n = label_unlabelled(g, data, torch.eye(4))
+    assert n == 2
+    assert out.labels.tolist() == [3, 0, 5]
+    assert torch.allclose(out.semantics[2], codec.encode(torch.tensor(5)))
+    assert torch.equal(out.semantics[1], g.semantics[1])
+
+
 def test_label_fusion_makes_its_tensors_on_the_maps_device():
     codec = SemanticCodec(SemanticSettings(), LabelTable.nyu40())
     points = torch.tensor([[0.0, 0.0, 1.0]])
