@@ -78,15 +78,22 @@ def replay(
     node_params += ("save_on_shutdown:=false", *params)  # a benchmark's map is not kept
     ros_args = [*(a for param in node_params for a in ("-p", param)), *(a for r in remaps for a in ("-r", r))]
     node = _start(("sgs_slam_ros.slam_node", "--transport", transport, "--ros-args", *ros_args), env)
-    if before_play is not None:
-        before_play()
-    player = subprocess.run(
-        [sys.executable, "-m", "sgs_slam_ros.bag_player", str(bag), "--transport", transport, "--wait", "120"],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=False,
-    )
+    try:
+        if before_play is not None:
+            before_play()
+        player = subprocess.run(
+            [sys.executable, "-m", "sgs_slam_ros.bag_player", str(bag), "--transport", transport, "--wait", "120"],
+            env=env,
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+    except BaseException:  # e.g. the node never spun: leave no node behind to load the next run's machine
+        for proc in (node, side):
+            if proc is not None:
+                proc.kill()
+                proc.wait()
+        raise
     time.sleep(3.0)  # the last frames' callbacks
     node.send_signal(signal.SIGINT)
     counts = final_counts(node.communicate(timeout=300)[0], player.stderr)
