@@ -16,13 +16,31 @@ from torch import Tensor
 
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.geometry.camera import Intrinsics
 
-__all__ = ["cast_votes", "seen_classes"]
+__all__ = ["cast_votes", "project_centres", "seen_classes"]
 
 # A centre counts as seen at its pixel when its depth is within this of the measured depth: a
 # Kinect's depth noise grows to ~2 cm at 3 m, and a Gaussian sits up to a pixel's footprint off it.
 _DEPTH_TOLERANCE_M = 0.02
 _DEPTH_TOLERANCE_RELATIVE = 0.02
+
+
+def project_centres(
+    means: Tensor,  # [N, 3] world points
+    w2c: Tensor,  # [4, 4]
+    k: Intrinsics,
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:  # [N, 3] camera frame, [N] int64 column, [N] int64 row, [N] bool
+    """Points in the camera frame, the pixel each lands on (rounded), and whether it is in front and in the image."""
+    w2c = w2c.to(means.dtype)
+    cam = means @ w2c[:3, :3].T + w2c[:3, 3]
+    z = cam[:, 2]
+    front = z > 1e-6
+    safe_z = torch.where(front, z, torch.ones_like(z))
+    u = torch.round(k.fx * cam[:, 0] / safe_z + k.cx).long()
+    v = torch.round(k.fy * cam[:, 1] / safe_z + k.cy).long()
+    inside = front & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
+    return cam, u, v, inside
 
 
 def seen_classes(
@@ -35,14 +53,8 @@ def seen_classes(
     if view.labels is None or not len(gaussians):
         return empty, empty, empty
     k = view.intrinsics
-    w2c = w2c.to(gaussians.means.dtype)
-    cam = gaussians.means @ w2c[:3, :3].T + w2c[:3, 3]  # [N, 3]
+    cam, u, v, inside = project_centres(gaussians.means, w2c, k)
     z = cam[:, 2]
-    front = z > 1e-6
-    safe_z = torch.where(front, z, torch.ones_like(z))
-    u = torch.round(k.fx * cam[:, 0] / safe_z + k.cx).long()
-    v = torch.round(k.fy * cam[:, 1] / safe_z + k.cy).long()
-    inside = front & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
     rows = torch.nonzero(inside).squeeze(1)  # [M]
     pixel = v[rows] * k.width + u[rows]  # [M]
     measured = torch.where(view.valid, view.depth, 0.0).reshape(-1)[pixel]

@@ -21,7 +21,7 @@ from torch import Tensor
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import vertex_map
-from sgs_slam_core.slam.label_votes import seen_classes
+from sgs_slam_core.slam.label_votes import project_centres, seen_classes
 
 __all__ = ["NEIGHBOUR_FOOTPRINTS", "label_unlabelled"]
 
@@ -35,11 +35,12 @@ def label_unlabelled(
     gaussians: GaussianMap,
     view: FrameTensors,  # labels and semantic set
     w2c: Tensor,  # [4, 4] the view's world-to-camera pose
+    seen: tuple[Tensor, Tensor, Tensor] | None = None,  # seen_classes(gaussians, view, w2c) when already made
 ) -> tuple[GaussianMap, int]:
     """``gaussians`` with the unlabelled ones the view sees labelled from it; how many took a class."""
     if view.labels is None or view.semantic is None:
         return gaussians, 0
-    rows, classes, pixel = seen_classes(gaussians, view, w2c)
+    rows, classes, pixel = seen if seen is not None else seen_classes(gaussians, view, w2c)
     unlabelled = gaussians.labels[rows] == 0
     seen, seen_pixel = rows[unlabelled], pixel[unlabelled]
     near, near_pixel = _beside_surface(gaussians, view, w2c, exclude=rows)
@@ -72,14 +73,7 @@ def _beside_surface(
     rows = torch.nonzero(unlabelled).squeeze(1)  # [U0]
     if not rows.numel():
         return empty, empty
-    w2c = w2c.to(gaussians.means.dtype)
-    cam = gaussians.means[rows] @ w2c[:3, :3].T + w2c[:3, 3]  # [U0, 3]
-    z = cam[:, 2]
-    front = z > 1e-6
-    safe_z = torch.where(front, z, torch.ones_like(z))
-    u = torch.round(k.fx * cam[:, 0] / safe_z + k.cx).long()
-    v = torch.round(k.fy * cam[:, 1] / safe_z + k.cy).long()
-    inside = front & (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
+    cam, u, v, inside = project_centres(gaussians.means[rows], w2c, k)  # [U0, 3], [U0] x 3
     rows, cam, u, v = rows[inside], cam[inside], u[inside], v[inside]
     if not rows.numel():
         return empty, empty

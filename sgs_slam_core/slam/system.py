@@ -308,9 +308,10 @@ class Slam:
         self._see_labels(frame)
         data = self._frame_tensors(frame, view.index)
         w2c = torch.as_tensor(view.w2c, dtype=torch.float32, device=self.device)
-        gaussians, _ = label_unlabelled(self.gaussians, data, w2c)  # votes too: no Gaussian keeps zero features
+        seen = seen_classes(self.gaussians, data, w2c)  # labelling adds no Gaussian: the votes see the same
+        gaussians, _ = label_unlabelled(self.gaussians, data, w2c, seen)  # votes too: no Gaussian keeps zero features
         if self.votes:
-            gaussians = self._voted(gaussians, data, view.w2c)
+            gaussians = self._voted(gaussians, data, view.w2c, seen)
         keyframe = self.keyframes.attach_labels(view.index, labels)
         if not keyframe and not self.keyframes.labelled_near(view.index, self.config.keyframes.every):
             # labels come rarer than keyframes: a labelled view supervises later windows' semantics
@@ -491,9 +492,17 @@ class Slam:
         """Whether classes are the labelled views' majority (``semantic.fusion: votes``)."""
         return self.config.semantic.fusion == "votes"
 
-    def _voted(self, gaussians: GaussianMap, data: FrameTensors, w2c: np.ndarray) -> GaussianMap:
+    def _voted(
+        self,
+        gaussians: GaussianMap,
+        data: FrameTensors,
+        w2c: np.ndarray,
+        seen: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,  # seen_classes' answer, if made
+    ) -> GaussianMap:
         """``gaussians`` with the classes of the labelled view ``data`` (seen from ``w2c`` [4, 4]) voted in."""
-        rows, classes, _ = seen_classes(gaussians, data, torch.as_tensor(w2c, dtype=torch.float32, device=self.device))
+        if seen is None:
+            seen = seen_classes(gaussians, data, torch.as_tensor(w2c, dtype=torch.float32, device=self.device))
+        rows, classes, _ = seen
         locked = torch.tensor(sorted(self.locked_labels), dtype=torch.int64, device=self.device)
         return cast_votes(gaussians, rows, classes, locked)
 
