@@ -91,7 +91,12 @@ def test_slam_node_tracks_and_renders_at_the_processing_size(tiny_scene):
         assert (renders[-1].width, renders[-1].height) == (32, 24)
         assert (infos[-1].width, infos[-1].height) == (32, 24)
         assert infos[-1].k[0] == pytest.approx(frames[0].intrinsics.fx / 2)
-        assert infos[-1].header.stamp in [r.header.stamp for r in renders]  # each render has its camera_info
+
+        def stamps(msgs: list) -> set[tuple[int, int]]:
+            return {(m.header.stamp.sec, m.header.stamp.nanosec) for m in list(msgs)}
+
+        # Each render has its camera_info; the two topics arrive apart, so wait until both have caught up.
+        assert wait_for(lambda: stamps(renders) == stamps(infos), 5.0)
         assert wait_for(lambda: diagnostics_of(diag, "tracking_node") and diagnostics_of(diag, "mapping_node"), 5.0)
         _, _, v = diagnostics_of(diag, "tracking_node")[-1]
         assert (v["input_size"], v["processing_size"], v["downscale"]) == ("64x48", "32x24", "2")
