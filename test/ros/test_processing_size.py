@@ -97,7 +97,12 @@ def test_slam_node_tracks_and_renders_at_the_processing_size(tiny_scene):
 
         # Each render has its camera_info; the two topics arrive apart, so wait until both have caught up.
         assert wait_for(lambda: stamps(renders) == stamps(infos), 5.0)
-        assert wait_for(lambda: diagnostics_of(diag, "tracking_node") and diagnostics_of(diag, "mapping_node"), 5.0)
+
+        def sized() -> bool:  # a status from before the first frame says n/a: wait for one from after it
+            t, m = diagnostics_of(diag, "tracking_node"), diagnostics_of(diag, "mapping_node")
+            return bool(t and m) and t[-1][2]["input_size"] != "n/a" and m[-1][2]["render_size"] != "n/a"
+
+        assert wait_for(sized, 5.0)
         _, _, v = diagnostics_of(diag, "tracking_node")[-1]
         assert (v["input_size"], v["processing_size"], v["downscale"]) == ("64x48", "32x24", "2")
         _, _, m = diagnostics_of(diag, "mapping_node")[-1]

@@ -34,11 +34,17 @@ def test_missing_label_topic_is_reported_once_and_clears(tiny_scene):
             feeder.publish(dataclasses.replace(frames[0], stamp_ns=(i + 1) * 10**8), semantic=False)
             i += 1
             time.sleep(0.1)
-        assert wait_for(lambda: diagnostics_of(diag, "tracking_node"), 3.0)
+
+        def warned() -> bool:  # statuses come once a second: wait for one from after the feed's frames
+            status = diagnostics_of(diag, "tracking_node")
+            return bool(status) and status[-1][0] == WARN and int(status[-1][2]["frames_in"]) >= 20
+
+        assert wait_for(warned, 3.0), diagnostics_of(diag, "tracking_node")[-1:]
         level, message, values = diagnostics_of(diag, "tracking_node")[-1]
         assert level == WARN and "/semantic/image" in message and "no labels" in message, message
         assert values["silent_inputs"] == "/semantic/image"
         assert int(values["frames_in"]) >= 20 and int(values["frames_tracked"]) >= 1  # frames never wait for labels
+        assert wait_for(lambda: any(m.name == "tracking_node" and "is silent" in m.msg for m in logs), 2.0)
         warnings = [m.msg for m in logs if m.name == "tracking_node" and "is silent" in m.msg]
         assert len(warnings) == 1, warnings  # once, not once a second
         assert "/semantic/image" in warnings[0] and "use_semantics:=false" in warnings[0]

@@ -153,7 +153,8 @@ def test_edit_services_remove_lock_and_undo(system, tiny):
     clouds = []
     feeder.create_subscription(PointCloud2, "/mapping_node/gaussians", clouds.append, 10)
     play(feeder, tiny[:6])
-    assert nodes[1].pipeline.wait_idle(30.0)
+    pipeline = nodes[1].pipeline  # label images are fused apart from their frames: wait for the last one too
+    assert wait_for(lambda: pipeline.stats.labels.labels_in == 6 and pipeline.wait_idle(1.0), 30.0)
     table = int((slam.gaussians.labels == 7).sum())
     assert table > 20
 
