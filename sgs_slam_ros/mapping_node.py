@@ -244,9 +244,10 @@ class MappingNode(Node):
         with self._render_lock, torch.no_grad():
             out = self.pipeline.render_view(snap, view.c2w)
             color = (out.color.clamp(0, 1) * 255).round().to(torch.uint8).cpu().numpy()
-            labels = (
-                snap.decode(out.semantic).cpu().numpy() if out.semantic.shape[-1] else np.zeros(color.shape[:2], int)
-            )
+            if out.semantic.shape[-1]:
+                labels = snap.decode_image(out.semantic).cpu().numpy()
+            else:
+                labels = np.zeros(color.shape[:2], int)
             labels = np.where(out.silhouette.cpu().numpy() > 0.5, labels, 0)
             depth = out.depth.cpu().numpy().astype(np.float32)
         stamp, frame_id = view.stamp_ns, view.frame_id

@@ -103,6 +103,10 @@ class SlamSnapshot:
         """Class ids from semantic features (rendered or per Gaussian)."""
         return self.codec.decode(semantic, list(self.label_candidates))
 
+    def decode_image(self, semantic: torch.Tensor) -> torch.Tensor:  # [H, W, S] -> [H, W] int64
+        """Class ids of a rendered image, blends at class boundaries resolved (``SemanticCodec.decode_image``)."""
+        return self.codec.decode_image(semantic, list(self.label_candidates))
+
 
 def _preempt_steps(lockstep: bool, share_cpu: bool, device: torch.device, iterations: int) -> int:
     """Live: the steps after which a mapping job ends when a newer job waits (0: it never does).

@@ -26,7 +26,7 @@ class RenderOutput:
     backend: str = "torch"
 
     def labels(self, decode: Callable[[Tensor], Tensor]) -> Tensor:  # [H, W] int64
-        """Class ids per pixel, decoded from ``semantic`` by e.g. ``SemanticCodec.decode``."""
+        """Class ids per pixel, decoded from ``semantic`` by e.g. ``SemanticCodec.decode_image``."""
         return decode(self.semantic)
 
 

@@ -96,7 +96,7 @@ class _FrameMetrics:
         if frame.labels is None:
             return None
         labels = torch.from_numpy(frame.labels.astype(np.int64))
-        decoded = self.codec.decode(out.semantic, self.candidates).cpu()
+        decoded = self.codec.decode_image(out.semantic, self.candidates).cpu()
         self.cm.update(decoded, labels)
         present = sorted(int(i) for i in np.unique(frame.labels))
         v["miou_paper"].append(paper_frame_miou(self.codec.decode(out.semantic, present).cpu(), labels))

@@ -86,7 +86,7 @@ class MapViews:
             write_image(paths[0], rgb[..., ::-1])  # atomic: a failed write leaves no partial PNG
             write_image(paths[1], depth_mm)
             if semantic:
-                labels = self.codec.decode(out.semantic, self.candidates).cpu().numpy()
+                labels = self.codec.decode_image(out.semantic, self.candidates).cpu().numpy()
                 labels[out.silhouette.cpu().numpy() < 0.5] = 0
                 paths.append(out_dir / f"semantic_{i:05d}.png")
                 write_image(paths[-1], self.saved.label_table.colorize(labels)[..., ::-1])

@@ -597,6 +597,10 @@ class Slam:
         """Class ids from semantic features (rendered or per Gaussian)."""
         return self.codec.decode(semantic, self.label_candidates())
 
+    def decode_image(self, semantic: torch.Tensor) -> torch.Tensor:  # [H, W, S] -> [H, W]
+        """Class ids of a rendered image, blends at class boundaries resolved (``SemanticCodec.decode_image``)."""
+        return self.codec.decode_image(semantic, self.label_candidates())
+
     @torch.no_grad()
     def render_view(
         self, c2w: np.ndarray, intrinsics: Intrinsics | None = None, with_semantics: bool = True

@@ -122,7 +122,7 @@ class SnapshotRecorder:
         depth = torch.nan_to_num(out.depth, nan=0.0, posinf=0.0).float().cpu().numpy()
         labels = None
         if with_sem:
-            decoded = slam.decode(out.semantic)
+            decoded = slam.decode_image(out.semantic)
             labels = torch.where(out.silhouette > 0.5, decoded, torch.zeros_like(decoded)).cpu().numpy()
         return rgb, depth, labels
 

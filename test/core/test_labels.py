@@ -73,3 +73,41 @@ def test_codec_candidates_and_errors():
     color = SemanticCodec(SemanticSettings(), LabelTable.nyu40())
     mid = (color.class_colors([1]) + 0.01).reshape(1, 3)
     assert color.decode(mid, candidates=[1, 2]).item() == 1
+
+
+def _three_class_codec() -> SemanticCodec:
+    """Classes 1 and 2 whose blends are nearer class 3's colour than their own."""
+    table = LabelTable(
+        [LabelClass(1, "red", (200, 0, 0)), LabelClass(2, "blue", (0, 0, 200)), LabelClass(3, "grey", (100, 100, 100))]
+    )
+    return SemanticCodec(SemanticSettings(), table)
+
+
+def test_decode_image_resolves_a_boundary_blend_to_a_class_beside_it_not_a_third_one():
+    codec = _three_class_codec()
+    labels = torch.tensor([[1, 1, 2, 2]] * 3)  # a vertical boundary between columns 1 and 2
+    rendered = codec.encode(labels)
+    rendered[:, 1] = 0.6 * rendered[:, 1] + 0.4 * codec.encode(torch.tensor(2))  # blended at the boundary
+    rendered[:, 2] = 0.5 * rendered[:, 2] + 0.5 * codec.encode(torch.tensor(1))
+    plain = codec.decode(rendered)
+    assert (plain[:, 1:3] == 3).all()  # the nearest colour of each blend is the third class
+    image = codec.decode_image(rendered)
+    assert torch.equal(image[:, 0], plain[:, 0]) and torch.equal(image[:, 3], plain[:, 3])
+    assert (image[:, 1] == 1).all() and (image[:, 2] == 2).all()  # the class of the confident neighbour
+
+
+def test_decode_image_keeps_a_real_third_class_and_isolated_blends():
+    codec = _three_class_codec()
+    labels = torch.tensor([[1, 3, 3, 2]] * 3)  # class 3 is really there: its pixels are near its colour
+    noisy = codec.encode(labels) + 0.01 * torch.randn((3, 4, 3), generator=torch.Generator().manual_seed(0))
+    assert torch.equal(codec.decode_image(noisy), labels)
+    lone = codec.encode(torch.tensor([[1]])) * 0.5 + codec.encode(torch.tensor([[2]])) * 0.5  # no neighbours
+    assert torch.equal(codec.decode_image(lone), codec.decode(lone))
+
+
+def test_decode_image_is_decode_for_onehot_and_rejects_what_is_no_image():
+    codec = SemanticCodec(SemanticSettings(mode="onehot", num_classes=5), LabelTable.nyu40())
+    soft = torch.softmax(torch.randn((4, 6, 5), generator=torch.Generator().manual_seed(1)), dim=-1)
+    assert torch.equal(codec.decode_image(soft, [1, 2, 4]), codec.decode(soft, [1, 2, 4]))
+    with pytest.raises(ShapeError, match=r"\[H, W, S\]"):
+        _three_class_codec().decode_image(torch.zeros(5, 3))
