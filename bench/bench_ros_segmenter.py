@@ -12,7 +12,7 @@ folder and loaded as a model would be: the real model's cost, meaningless labels
 be downloaded on a machine without the hub). Needs the ``segmentation`` extra (transformers).
 
     python bench/bench_ros_segmenter.py ../shared/data/tum_fr3_teddy --downscale 4 [--model NAME_OR_DIR]
-        [--seg-downscale 2 --seg-threads 1 --slam-threads 1] [--repeats 2] [--no-append]
+        [--seg-downscale 2 --seg-threads 1 --seg-rate-hz 1 --slam-threads 1] [--repeats 2] [--no-append]
 """
 
 from __future__ import annotations
@@ -96,6 +96,8 @@ def ros_run(bag: Path, args: argparse.Namespace, model: str | None) -> Outcome:
             f"downscale:={float(args.seg_downscale)!r}",
             "-p",
             f"threads:={args.seg_threads}",
+            "-p",
+            f"max_rate_hz:={float(args.seg_rate_hz)!r}",
         )
         side += ("-r", f"rgb/image:={COLOR_TOPIC}", "-r", f"semantic/image:={LABELS_TOPIC}")
     with PoseRecorder(domain) as recorder:
@@ -148,6 +150,7 @@ def main() -> int:
     p.add_argument("--model", help="SegFormer ADE20K hub name or folder (default: b0 with random weights)")
     p.add_argument("--seg-downscale", type=float, default=1.0, help="segmentation_node's downscale parameter")
     p.add_argument("--seg-threads", type=int, default=0, help="segmentation_node's threads parameter (0: default)")
+    p.add_argument("--seg-rate-hz", type=float, default=0.0, help="segmentation_node's max_rate_hz (0: uncapped)")
     p.add_argument("--slam-threads", type=int, default=0, help="slam_node's threads parameter (0: default)")
     p.add_argument("--compress", choices=["zstd", "none"], default="zstd", help="chunks of the bag a dataset becomes")
     p.add_argument("--repeats", type=int, default=2, help="replays of each (a live run varies run to run)")
@@ -171,7 +174,8 @@ def main() -> int:
         model_name = args.model or "SegFormer-b0, random weights"
         note = (
             f"`{args.input.name}`, preset {args.preset}, downscale {args.downscale:g}, segmenter {model_name} on the "
-            f"CPU (its downscale {args.seg_downscale:g}, threads {args.seg_threads or 'default'}; slam_node's threads "
+            f"CPU (its downscale {args.seg_downscale:g}, threads {args.seg_threads or 'default'}, "
+            f"at most {args.seg_rate_hz or 'any'} Hz; slam_node's threads "
             f"{args.slam_threads or 'default'}); `bag_player` "
             "at the recorded rate, `segmentation_node` and `slam_node` (shared memory, three "
             "processes), alternating with semantics off"

@@ -6,7 +6,8 @@ same ``rgb/image`` remap serves both; and ``semantic/label_table`` (std_msgs/Str
 label table, latched) naming what the ids mean. The model is SegFormer trained on ADE20K
 (``model``: a Hugging Face hub name or a saved folder), its classes mapped to NYU40
 (:mod:`sgs_slam_core.segmentation.ade20k`). The newest image is segmented when the model is free;
-older ones are dropped and counted. ``/diagnostics``: rates, counts, the model and its device.
+older ones are dropped and counted; ``max_rate_hz`` caps the rate. ``/diagnostics``: rates, counts,
+the model and its device.
 """
 
 from __future__ import annotations
@@ -55,6 +56,14 @@ SEGMENTATION = (
         bounds=(0, 256),
         read_only=True,
     ),
+    ParamSpec(
+        "max_rate_hz",
+        0.0,
+        "segment at most this many images a second (0 = as fast as the model runs); on a small CPU a cap leaves "
+        "the SLAM its share of the cores",
+        bounds=(0.0, 1000.0),
+        read_only=True,
+    ),
 )
 
 
@@ -96,17 +105,22 @@ class SegmentationNode(Node):
         self.inputs.tick()
         with self._cv:
             self.frames_in += 1
-            self.dropped += int(self._newest is not None)  # the model was busy: the older image goes
+            self.dropped += int(self._newest is not None)  # the model was busy or capped: the older image goes
             self._newest = msg
             self._cv.notify()
 
     def _loop(self) -> None:
+        period = 1.0 / self.params["max_rate_hz"] if self.params["max_rate_hz"] > 0 else 0.0
+        next_start = time.monotonic()
         while True:
             with self._cv:
+                # the rate cap first (a stop ends it at once), then the newest image: the freshest is segmented
+                self._cv.wait_for(lambda: not self._running, timeout=max(0.0, next_start - time.monotonic()))
                 self._cv.wait_for(lambda: self._newest is not None or not self._running)
                 if not self._running:
                     return
                 msg, self._newest = self._newest, None
+            next_start = time.monotonic() + period
             self._segment(msg)
 
     def _segment(self, msg: Image) -> None:
@@ -143,6 +157,7 @@ class SegmentationNode(Node):
             "processing_rate_hz": f"{self.outputs.rate():.2f}",
             "last_frame_ms": f"{self.last_ms:.0f}",
             "model_input": f"1/{self.params['downscale']:g} of the colour image, {torch.get_num_threads()} threads",
+            "max_rate_hz": f"{self.params['max_rate_hz']:g}" if self.params["max_rate_hz"] > 0 else "none",
             "frames_in": str(self.frames_in),
             "frames_segmented": str(self.segmented),
             "frames_dropped": str(self.dropped),
