@@ -42,9 +42,9 @@ def label_unlabelled(
         return gaussians, 0
     rows, classes, pixel = seen if seen is not None else seen_classes(gaussians, view, w2c)
     unlabelled = gaussians.labels[rows] == 0
-    seen, seen_pixel = rows[unlabelled], pixel[unlabelled]
+    at_depth, at_depth_pixel = rows[unlabelled], pixel[unlabelled]
     near, near_pixel = _beside_surface(gaussians, view, w2c, exclude=rows)
-    taken, taken_pixel = torch.cat([seen, near]), torch.cat([seen_pixel, near_pixel])
+    taken, taken_pixel = torch.cat([at_depth, near]), torch.cat([at_depth_pixel, near_pixel])
     if not taken.numel():
         return gaussians, 0
     classes = view.labels.reshape(-1)[taken_pixel].to(gaussians.labels.dtype)
