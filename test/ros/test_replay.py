@@ -74,7 +74,7 @@ def test_live_replay_counts_add_up_in_diagnostics(tiny_bag):
         assert t["frames_dropped"] >= 1, t  # live mode keeps up by dropping
         assert st.errors == 0
         assert t["frames_tracked"] == int(m["frames_mapped"]) + int(m["jobs_dropped"]), (t, m)
-        assert float(m["mapping_steps_per_frame"]) == pytest.approx(st.map_steps_per_frame, abs=0.05)
+        assert m["mapping_steps_per_frame"] == f"{st.map_steps_per_frame:.1f}"  # as /diagnostics rounds it
         assert st.map_steps_per_frame >= 1
     finally:
         stop(spinner, ctx, [*nodes, player])
