@@ -29,7 +29,7 @@ class CountingModel:
 
 
 @pytest.mark.parametrize("max_rate_hz", [0.0, 4.0])
-def test_a_rate_cap_segments_at_most_that_many_images_a_second_and_the_newest_of_them(max_rate_hz, tiny_scene):
+def test_a_rate_cap_spaces_the_model_runs_by_its_period(max_rate_hz, tiny_scene):
     frame = tiny_frames(tiny_scene)[0]
     ctx = new_context()
     model = CountingModel()
@@ -51,7 +51,7 @@ def test_a_rate_cap_segments_at_most_that_many_images_a_second_and_the_newest_of
         assert wait_for(lambda: seg.frames_in == sent and seg.segmented + seg.dropped == sent, 10.0)
         gaps = np.diff(model.calls)
         if max_rate_hz:
-            assert len(model.calls) <= 1.5 * max_rate_hz + 1 and (gaps >= 1.0 / max_rate_hz - 0.01).all(), gaps
+            assert len(model.calls) >= 3 and (gaps >= 1.0 / max_rate_hz - 0.01).all(), gaps
         else:
             assert len(model.calls) >= sent // 2  # an instant model keeps up with the camera
         assert wait_for(lambda: len(labels) == seg.segmented, 5.0)
