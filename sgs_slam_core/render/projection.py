@@ -10,7 +10,7 @@ from torch import Tensor
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.render.settings import RenderSettings
 
-__all__ = ["Projection", "project_gaussians"]
+__all__ = ["Projection", "frustum_candidates", "project_gaussians"]
 
 
 @dataclass
@@ -97,3 +97,34 @@ def _radii(
     radii = torch.sqrt(extent2 * lam_max)
     visible = in_front & (opacities >= settings.alpha_min) & torch.isfinite(radii)
     return torch.where(visible, radii, torch.zeros_like(radii))
+
+
+@torch.no_grad()
+def frustum_candidates(
+    means: Tensor,  # [N, 3] world frame
+    log_scales: Tensor,  # [N, 1] or [N] isotropic log standard deviation (log m)
+    w2c: Tensor,  # [4, 4]
+    intrinsics: Intrinsics,
+    settings: RenderSettings,
+) -> Tensor:  # [M] int64, ascending
+    """The Gaussians whose footprint may touch the image: every one a render composites is among them.
+
+    Left out: those at or behind the near plane, and those whose projected centre lies farther
+    outside the image than a bound on :func:`project_gaussians`' radius: ``extent_sigma`` standard
+    deviations of the largest spread the clamped Jacobian allows, the scale rounded up to a power of
+    two, with 1 % and 1 px of slack. The reference of the compiled renderer's culling.
+    """
+    k = intrinsics
+    cam = means @ w2c[:3, :3].T + w2c[:3, 3]
+    x, y, z = cam.unbind(-1)
+    tan_x, tan_y = 0.5 * k.width / k.fx, 0.5 * k.height / k.fy
+    tx = max(abs(-(k.cx + 0.5) / k.fx - 0.3 * tan_x), abs((k.width - k.cx - 0.5) / k.fx + 0.3 * tan_x))
+    ty = max(abs(-(k.cy + 0.5) / k.fy - 0.3 * tan_y), abs((k.height - k.cy - 0.5) / k.fy + 0.3 * tan_y))
+    k2 = k.fx**2 * (1 + tx * tx) + k.fy**2 * (1 + ty * ty) + k.fx * k.fy * tx * ty
+    exponent = (torch.floor(log_scales.reshape(-1) * 1.44269504) + 1.0).nan_to_num(127.0).clamp(-126.0, 127.0)
+    inv_z = 1.0 / z
+    rs = torch.exp2(exponent) * inv_z
+    r = 1.01 * torch.sqrt(settings.extent_sigma**2 * (rs * rs * k2 + 2.0 * settings.eps2d)) + 1.0
+    u, v = k.fx * (x * inv_z) + k.cx, k.fy * (y * inv_z) + k.cy
+    outside = (u + r < 0) | (u - r > k.width - 1) | (v + r < 0) | (v - r > k.height - 1)
+    return torch.nonzero(~(z <= settings.near_plane) & ~outside).squeeze(1)  # NaNs stay in

@@ -1058,24 +1058,26 @@ torch::Tensor composite_backward(torch::Tensor means2d, torch::Tensor conics, to
 }
 
 // Per Gaussian: camera transform, activations, feature row (colour, semantics, depth) and projection.
+// Output row g is input row rows[g] (rows null: row g).
 template <typename T>
 void prepare_world_all(const Camera& k, int64_t n, int64_t ns, const T* m, const T* ls, const T* lo, const T* col,
                        const T* sem, const T* P, T* pmc, T* psc, T* pop, T* pf, T* pm2d, T* pcon, T* prad,
-                       int threads) {
+                       int threads, const int64_t* rows = nullptr) {
   const int64_t d = 3 + ns + 1;
   const Proj<T> pk(k);
 #pragma omp parallel for num_threads(threads) schedule(static)
   for (int64_t g = 0; g < n; ++g) {
-    const T x = m[3 * g], y = m[3 * g + 1], z = m[3 * g + 2];
+    const int64_t q = rows ? rows[g] : g;
+    const T x = m[3 * q], y = m[3 * q + 1], z = m[3 * q + 2];
     T* c = pmc + 3 * g;
     for (int i = 0; i < 3; ++i) c[i] = P[4 * i] * x + P[4 * i + 1] * y + P[4 * i + 2] * z + P[4 * i + 3];
-    psc[g] = std::exp(ls[g]);
-    pop[g] = T(1) / (T(1) + std::exp(-lo[g]));
+    psc[g] = std::exp(ls[q]);
+    pop[g] = T(1) / (T(1) + std::exp(-lo[q]));
     T* f = pf + d * g;
-    f[0] = col[3 * g];
-    f[1] = col[3 * g + 1];
-    f[2] = col[3 * g + 2];
-    for (int64_t j = 0; j < ns; ++j) f[3 + j] = sem[ns * g + j];
+    f[0] = col[3 * q];
+    f[1] = col[3 * q + 1];
+    f[2] = col[3 * q + 2];
+    for (int64_t j = 0; j < ns; ++j) f[3 + j] = sem[ns * q + j];
     project_one(pk, c, psc[g], pop[g], pm2d + 2 * g, pcon + 3 * g, prad + g, f + d - 1);
   }
 }
@@ -1084,10 +1086,10 @@ void prepare_world_all(const Camera& k, int64_t n, int64_t ns, const T* m, const
 // the same order, IEEE divisions and square roots in the lanes and the scalar libm's exp and log per
 // lane, so for finite inputs the results are bit for bit the scalar path's (tested); a faster
 // polynomial exp would change the rounding, and with it the trajectories of real sequences.
-// The tail (n % W Gaussians) takes the scalar path.
+// The tail (n % W Gaussians) takes the scalar path. Output row g is input row rows[g] (rows null: g).
 void prepare_world(const Camera& k, int64_t n, int64_t ns, const float* m, const float* ls, const float* lo,
                    const float* col, const float* sem, const float* P, float* pmc, float* psc, float* pop, float* pf,
-                   float* pm2d, float* pcon, float* prad, int threads) {
+                   float* pm2d, float* pcon, float* prad, int threads, const int64_t* rows) {
   using F = V<float>;
   constexpr int W = Pack<float>::W;
   const int64_t d = 3 + ns + 1, blocks = n / W;
@@ -1096,10 +1098,12 @@ void prepare_world(const Camera& k, int64_t n, int64_t ns, const float* m, const
   for (int64_t blk = 0; blk < blocks; ++blk) {
     const int64_t g0 = blk * W;
     alignas(64) float in[5][W];  // x, y, z, log-scale, logit-opacity
+    int64_t src[W];              // the input rows
     for (int l = 0; l < W; ++l) {
-      for (int i = 0; i < 3; ++i) in[i][l] = m[3 * (g0 + l) + i];
-      in[3][l] = ls[g0 + l];
-      in[4][l] = lo[g0 + l];
+      const int64_t q = src[l] = rows ? rows[g0 + l] : g0 + l;
+      for (int i = 0; i < 3; ++i) in[i][l] = m[3 * q + i];
+      in[3][l] = ls[q];
+      in[4][l] = lo[q];
     }
     const F x = load(in[0]), y = load(in[1]), z = load(in[2]);
     F c[3];
@@ -1136,8 +1140,8 @@ void prepare_world(const Camera& k, int64_t n, int64_t ns, const float* m, const
       psc[g] = scale[l];
       pop[g] = opacity[l];
       float* f = pf + d * g;
-      for (int i = 0; i < 3; ++i) f[i] = col[3 * g + i];
-      for (int64_t j = 0; j < ns; ++j) f[3 + j] = sem[ns * g + j];
+      for (int i = 0; i < 3; ++i) f[i] = col[3 * src[l] + i];
+      for (int64_t j = 0; j < ns; ++j) f[3 + j] = sem[ns * src[l] + j];
       f[d - 1] = cz[l];
       pm2d[2 * g] = u[l];
       pm2d[2 * g + 1] = v[l];
@@ -1148,6 +1152,11 @@ void prepare_world(const Camera& k, int64_t n, int64_t ns, const float* m, const
     }
   }
   const int64_t t0 = blocks * W;  // the tail: the scalar path on the arrays' remaining rows
+  if (rows) {  // the inputs stay whole; the rows say where
+    prepare_world_all<float>(k, n - t0, ns, m, ls, lo, col, sem, P, pmc + 3 * t0, psc + t0, pop + t0, pf + d * t0,
+                             pm2d + 2 * t0, pcon + 3 * t0, prad + t0, 1, rows + t0);
+    return;
+  }
   prepare_world_all<float>(k, n - t0, ns, m + 3 * t0, ls + t0, lo + t0, col + 3 * t0, sem + ns * t0, P, pmc + 3 * t0,
                            psc + t0, pop + t0, pf + d * t0, pm2d + 2 * t0, pcon + 3 * t0, prad + t0, 1);
 }
@@ -1155,8 +1164,9 @@ void prepare_world(const Camera& k, int64_t n, int64_t ns, const float* m, const
 // Other precisions: the scalar path.
 template <typename T>
 void prepare_world(const Camera& k, int64_t n, int64_t ns, const T* m, const T* ls, const T* lo, const T* col,
-                   const T* sem, const T* P, T* pmc, T* psc, T* pop, T* pf, T* pm2d, T* pcon, T* prad, int threads) {
-  prepare_world_all<T>(k, n, ns, m, ls, lo, col, sem, P, pmc, psc, pop, pf, pm2d, pcon, prad, threads);
+                   const T* sem, const T* P, T* pmc, T* psc, T* pop, T* pf, T* pm2d, T* pcon, T* prad, int threads,
+                   const int64_t* rows) {
+  prepare_world_all<T>(k, n, ns, m, ls, lo, col, sem, P, pmc, psc, pop, pf, pm2d, pcon, prad, threads, rows);
 }
 
 // Per Gaussian: projection backward and the chain through the transform and the activations.
@@ -1195,23 +1205,31 @@ void world_backward_all(const Camera& k, int64_t n, int64_t ns, int64_t stride, 
 // camera depth) gathered in one pass, so no per-Gaussian tensor op runs in PyTorch per render.
 // Same maths as render/api.py's to_camera followed by projection.py's isotropic EWA projection.
 // Returns (means_cam [N, 3], scales [N], opacities [N], features [N, 3 + S + 1], means2d [N, 2],
-// conics [N, 3], radii [N]); the features' last column is the depth.
-std::vector<torch::Tensor> prepare_world_isotropic(torch::Tensor means, torch::Tensor log_scales,
-                                                   torch::Tensor logit_opacities, torch::Tensor colors,
-                                                   torch::Tensor semantics, torch::Tensor w2c, double fx, double fy,
-                                                   double cx, double cy, int64_t width, int64_t height, double near,
-                                                   double eps2d, double alpha_min, double extent_sigma,
-                                                   int64_t threads) {
+// conics [N, 3], radii [N]); the features' last column is the depth. With ``rows`` ([M] int64, e.g.
+// frustum_candidates'), only those Gaussians, in that order: every output has M rows.
+std::vector<torch::Tensor> prepare_world_rows(torch::Tensor means, torch::Tensor log_scales,
+                                              torch::Tensor logit_opacities, torch::Tensor colors,
+                                              torch::Tensor semantics, torch::Tensor w2c, double fx, double fy,
+                                              double cx, double cy, int64_t width, int64_t height, double near,
+                                              double eps2d, double alpha_min, double extent_sigma, int64_t threads,
+                                              c10::optional<torch::Tensor> rows) {
   means = means.contiguous();
   log_scales = log_scales.contiguous();
   logit_opacities = logit_opacities.contiguous();
   colors = colors.contiguous();
   semantics = semantics.contiguous();
   w2c = w2c.contiguous();
-  const int64_t n = means.size(0), ns = semantics.size(1), d = 3 + ns + 1;
-  TORCH_CHECK(log_scales.numel() == n && logit_opacities.numel() == n && colors.size(0) == n && colors.size(1) == 3 &&
-                  semantics.size(0) == n && w2c.numel() == 16,
+  const int64_t total = means.size(0), ns = semantics.size(1), d = 3 + ns + 1;
+  TORCH_CHECK(log_scales.numel() == total && logit_opacities.numel() == total && colors.size(0) == total &&
+                  colors.size(1) == 3 && semantics.size(0) == total && w2c.numel() == 16,
               "prepare_world_isotropic: inconsistent shapes");
+  torch::Tensor picked;
+  if (rows) {
+    picked = rows->contiguous();
+    TORCH_CHECK(picked.scalar_type() == torch::kInt64 && picked.dim() == 1, "prepare_world_isotropic: rows must be [M] int64");
+  }
+  const int64_t n = rows ? picked.size(0) : total;
+  const int64_t* pr = rows ? picked.data_ptr<int64_t>() : nullptr;
   const Camera k{fx, fy, cx, cy, width, height, near, eps2d, alpha_min, extent_sigma};
   auto opts = means.options();
   auto mc = torch::empty({n, 3}, opts), sc = torch::empty({n}, opts), op = torch::empty({n}, opts);
@@ -1227,9 +1245,19 @@ std::vector<torch::Tensor> prepare_world_isotropic(torch::Tensor means, torch::T
     const T* P = w2c.data_ptr<T>();
     T *pmc = mc.data_ptr<T>(), *psc = sc.data_ptr<T>(), *pop = op.data_ptr<T>(), *pf = feats.data_ptr<T>();
     T *pm2d = m2d.data_ptr<T>(), *pcon = con.data_ptr<T>(), *prad = rad.data_ptr<T>();
-    prepare_world(k, n, ns, m, ls, lo, col, sem, P, pmc, psc, pop, pf, pm2d, pcon, prad, static_cast<int>(threads));
+    prepare_world(k, n, ns, m, ls, lo, col, sem, P, pmc, psc, pop, pf, pm2d, pcon, prad, static_cast<int>(threads), pr);
   });
   return {mc, sc, op, feats, m2d, con, rad};
+}
+
+std::vector<torch::Tensor> prepare_world_isotropic(torch::Tensor means, torch::Tensor log_scales,
+                                                   torch::Tensor logit_opacities, torch::Tensor colors,
+                                                   torch::Tensor semantics, torch::Tensor w2c, double fx, double fy,
+                                                   double cx, double cy, int64_t width, int64_t height, double near,
+                                                   double eps2d, double alpha_min, double extent_sigma,
+                                                   int64_t threads) {
+  return prepare_world_rows(means, log_scales, logit_opacities, colors, semantics, w2c, fx, fy, cx, cy, width, height,
+                            near, eps2d, alpha_min, extent_sigma, threads, c10::nullopt);
 }
 
 // Gradients of the map's parameters from the compositor's per-Gaussian rows [N, 6 + D] (u, v, A,
@@ -1289,6 +1317,86 @@ std::vector<torch::Tensor> world_isotropic_backward(torch::Tensor means, torch::
   return {g_m, g_ls, g_lo, g_col, g_sem, g_w2c};
 }
 
+// Whether a Gaussian with camera-frame centre (x, y, z) and log-scale ls can touch the image: false
+// only when it lies at or behind the near plane, or its projected centre lies farther outside the
+// image than a bound on its footprint's radius. The bound: project_one's radius is at most
+// extent_sigma * sqrt(lam) with lam <= (s / z)^2 * k2 + 2 eps2d (k2 from the clamped tangents), and the
+// scale s = exp(ls) at most 2^(floor(ls / ln 2) + 1), built from the float's bits (no libm); 1 % and
+// 1 px of slack cover the rounding of u and v here against prepare's. NaNs stay in. Branch-free, so
+// the compiler vectorises the loop over Gaussians.
+inline bool may_touch(float x, float y, float z, float ls, const Proj<float>& pk, float k2, float last_u,
+                      float last_v) {
+  float e = std::floor(ls * 1.44269504f) + 1.0f;  // log2(e) * ls, rounded up; NaN -> 2^127
+  e = e < 127.0f ? e : 127.0f;
+  e = e > -126.0f ? e : -126.0f;
+  const int32_t bits = (static_cast<int32_t>(e) + 127) << 23;
+  float s_up;
+  std::memcpy(&s_up, &bits, sizeof(s_up));
+  const float iz = 1.0f / z, rs = s_up * iz;
+  const float r = 1.01f * std::sqrt(pk.extent2 * (rs * rs * k2 + 2.0f * pk.eps2d)) + 1.0f;
+  const float u = pk.fx * (x * iz) + pk.cx, v = pk.fy * (y * iz) + pk.cy;
+  const bool outside = (u + r < 0.0f) | (u - r > last_u) | (v + r < 0.0f) | (v - r > last_v);
+  return !(z <= pk.near) & !outside;
+}
+
+// Ids (ascending, int64) of the map's Gaussians that may touch the image: every Gaussian whose
+// footprint a render would composite is among them (``may_touch``), so rendering only these gives
+// the same images and, scattered back, the same gradients. Float maps only.
+torch::Tensor frustum_candidates(torch::Tensor means, torch::Tensor log_scales, torch::Tensor w2c, double fx,
+                                 double fy, double cx, double cy, int64_t width, int64_t height, double near,
+                                 double eps2d, double extent_sigma, int64_t threads) {
+  TORCH_CHECK(means.device().is_cpu() && means.scalar_type() == torch::kFloat32, "frustum_candidates: float CPU means");
+  means = means.contiguous();
+  log_scales = log_scales.contiguous().to(torch::kFloat32);
+  const auto pose = w2c.contiguous().to(torch::kFloat32);
+  const int64_t n = means.size(0);
+  TORCH_CHECK(log_scales.numel() == n && pose.numel() == 16, "frustum_candidates: inconsistent shapes");
+  const Camera k{fx, fy, cx, cy, width, height, near, eps2d, 0.0, extent_sigma};
+  const Proj<float> pk(k);
+  const float tx = std::max(std::abs(pk.lx0), std::abs(pk.lx1)), ty = std::max(std::abs(pk.ly0), std::abs(pk.ly1));
+  const float k2 = pk.fx * pk.fx * (1.0f + tx * tx) + pk.fy * pk.fy * (1.0f + ty * ty) + pk.fx * pk.fy * tx * ty;
+  const float last_u = static_cast<float>(width - 1), last_v = static_cast<float>(height - 1);
+  const float* __restrict m = means.data_ptr<float>();
+  const float* __restrict ls = log_scales.data_ptr<float>();
+  float P[12];
+  std::memcpy(P, pose.data_ptr<float>(), sizeof(P));
+  auto ids = torch::empty({n}, torch::kInt64);
+  int64_t* out = ids.data_ptr<int64_t>();
+  // Each of `threads` equal id ranges writes its kept ids from its own start, a chunk of flags at a
+  // time, then the ranges are moved together in order: the same list for any number of threads.
+  constexpr int64_t kChunk = 512;
+  const int parts = static_cast<int>(std::max<int64_t>(threads, 1));
+  std::vector<int64_t> kept(static_cast<size_t>(parts), 0);
+  auto first = [&](int64_t p) { return n * p / parts; };
+#pragma omp parallel for num_threads(parts) schedule(static, 1)
+  for (int64_t p = 0; p < parts; ++p) {
+    int64_t at = first(p);
+    uint8_t flag[kChunk];
+    for (int64_t g0 = first(p); g0 < first(p + 1); g0 += kChunk) {
+      const int64_t len = std::min(kChunk, first(p + 1) - g0);
+      for (int64_t i = 0; i < len; ++i) {
+        const int64_t g = g0 + i;
+        const float x = m[3 * g], y = m[3 * g + 1], z = m[3 * g + 2];
+        const float cx_ = P[0] * x + P[1] * y + P[2] * z + P[3];
+        const float cy_ = P[4] * x + P[5] * y + P[6] * z + P[7];
+        const float cz_ = P[8] * x + P[9] * y + P[10] * z + P[11];
+        flag[i] = may_touch(cx_, cy_, cz_, ls[g], pk, k2, last_u, last_v);
+      }
+      for (int64_t i = 0; i < len; ++i) {
+        out[at] = g0 + i;
+        at += flag[i];
+      }
+    }
+    kept[p] = at - first(p);
+  }
+  int64_t total = kept[0];
+  for (int p = 1; p < parts; ++p) {
+    std::memmove(out + total, out + first(p), static_cast<size_t>(kept[p]) * sizeof(int64_t));
+    total += kept[p];
+  }
+  return ids.narrow(0, 0, total);
+}
+
 // The GIL is released while the kernels run, so tracking, mapping and rendering threads overlap.
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   using release = py::call_guard<py::gil_scoped_release>;
@@ -1296,6 +1404,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         "camera transform, activations, feature rows and projection of the map's isotropic Gaussians");
   m.def("world_isotropic_backward", &world_isotropic_backward, release(),
         "gradients of the map's parameters (and the pose) from the compositor's rows");
+  m.def("prepare_world_rows", &prepare_world_rows, release(), "prepare_world_isotropic of the given rows only");
+  m.def("frustum_candidates", &frustum_candidates, release(), "ids of the Gaussians that may touch the image");
   m.def("max_tile", &max_tile, "largest tile side the compositor takes in float (false) or double (true)");
   m.def("bin_gaussians", &bin_gaussians, release(), "tile lists sorted by depth");
   m.def("composite_forward", &composite_forward, release(), "front-to-back compositing");

@@ -24,6 +24,7 @@ __all__ = [
     "WorldRenderState",
     "WorldTensors",
     "composite_cpu",
+    "frustum_cull",
     "render_world_isotropic_cpu",
     "world_isotropic_backward",
     "world_isotropic_forward",
@@ -66,21 +67,26 @@ class CameraArgs(NamedTuple):
 
 
 class WorldTensors(NamedTuple):
-    """A compiled isotropic render's inputs and intermediates that its backward reads."""
+    """A compiled isotropic render's inputs and intermediates that its backward reads.
 
-    means: Tensor  # [N, 3] world frame
+    Per-Gaussian rows are those of the Gaussians that may touch the image (:func:`frustum_cull`):
+    ``M`` of the map's ``N`` (``means`` excepted).
+    """
+
+    means: Tensor  # [N, 3] world frame, the whole map's
     w2c: Tensor  # [4, 4]
-    means_cam: Tensor  # [N, 3] camera frame
-    scales: Tensor  # [N]
-    opacities: Tensor  # [N]
-    means2d: Tensor  # [N, 2]
-    conics: Tensor  # [N, 3]
-    radii: Tensor  # [N]
-    features: Tensor  # [N, 3 + S + 1] colour, semantics, depth
+    means_cam: Tensor  # [M, 3] camera frame
+    scales: Tensor  # [M]
+    opacities: Tensor  # [M]
+    means2d: Tensor  # [M, 2]
+    conics: Tensor  # [M, 3]
+    radii: Tensor  # [M]
+    features: Tensor  # [M, 3 + S + 1] colour, semantics, depth
     gids: Tensor  # [I] int32, Gaussians per tile intersection, depth-sorted per tile
     offsets: Tensor  # [T + 1] int64, each tile's range in gids
     t_final: Tensor  # [H, W] transmittance after the last blended Gaussian
     count: Tensor  # [H, W] int32, Gaussians blended per pixel
+    ids: Tensor | None  # [M] int64, the map's rows the rows above are (None: every row, M = N)
 
 
 class RenderImages(NamedTuple):
@@ -98,9 +104,44 @@ class WorldRenderState:
 
     tensors: WorldTensors
     groups: list[int]  # channel groups: colour 3, semantics S, depth 1
+    num_gaussians: int  # N, the map's (the gradients' rows)
     args: CompositeArgs
     cam: CameraArgs
     settings: RenderSettings
+
+
+# Culling pays when it leaves out at least this share of the map: below, scattering the kept rows'
+# gradients back costs about what the kernels save on the rest.
+CULL_MIN_SHARE = 0.1
+
+
+def frustum_cull(
+    means: Tensor,  # [N, 3] world frame
+    log_scales: Tensor,  # [N, 1]
+    w2c: Tensor,  # [4, 4]
+    cam: CameraArgs,
+    s: RenderSettings,
+) -> Tensor | None:  # [M] int64 ascending, or None: every Gaussian
+    """The Gaussians that may touch the image (``frustum_candidates`` in ``raster.cpp``; its
+    PyTorch reference is :func:`sgs_slam_core.render.projection.frustum_candidates`).
+
+    A render of these alone is the whole map's, bit for bit: the kernels composite the kept ones in
+    the same order and skip the rest. The cost of a render then follows what the camera sees, not
+    the map's size. None (no culling) for double maps and when culling would leave out less than
+    ``CULL_MIN_SHARE`` of the map.
+    """
+    if means.dtype != torch.float32:
+        return None
+    cuts = (s.near_plane, s.eps2d, s.extent_sigma, torch.get_num_threads())
+    ids = RENDER.module().frustum_candidates(means, log_scales, w2c, *cam, *cuts)
+    return None if len(ids) > (1.0 - CULL_MIN_SHARE) * len(means) else ids
+
+
+def _uncull(ids: Tensor | None, n: int, grads: tuple[Tensor, ...]) -> tuple[Tensor, ...]:  # ids [M]; grads [M, ...]
+    """Gradients of the kept rows as the whole map's ``[N, ...]``: exact zeros for the culled Gaussians."""
+    if ids is None:
+        return grads
+    return tuple(g.new_zeros((n, *g.shape[1:])).index_copy_(0, ids, g) for g in grads)
 
 
 def _max_tile(ext: Any, dtype: torch.dtype, s: RenderSettings) -> int:
@@ -184,8 +225,9 @@ def world_isotropic_forward(
     ext, threads = RENDER.module(), torch.get_num_threads()
     m, ls, lo, col, sem, pose = (t.detach() for t in (means, log_scales, logit_opacities, colors, semantics, w2c))
     cam = CameraArgs.of(k)
+    ids = frustum_cull(m, ls, pose, cam, s)
     cuts = (s.near_plane, s.eps2d, s.alpha_min, s.extent_sigma, threads)
-    mc, sc, op, feats, m2d, con, rad = ext.prepare_world_isotropic(m, ls, lo, col, sem, pose, *cam, *cuts)
+    mc, sc, op, feats, m2d, con, rad = ext.prepare_world_rows(m, ls, lo, col, sem, pose, *cam, *cuts, ids)
     tile = _max_tile(ext, m.dtype, s)
     gids, offsets = ext.bin_gaussians(m2d, rad, feats[:, -1], k.width, k.height, tile, threads)
     args = CompositeArgs.of(s, k.width, k.height, tile, threads)
@@ -205,8 +247,9 @@ def world_isotropic_forward(
         offsets=offsets,
         t_final=t_final,
         count=count,
+        ids=ids,
     )
-    return RenderImages(*images), WorldRenderState(tensors, groups, args, cam, s)
+    return RenderImages(*images), WorldRenderState(tensors, groups, len(means), args, cam, s)
 
 
 def world_isotropic_backward(
@@ -219,13 +262,15 @@ def world_isotropic_backward(
     t, ext, s = state.tensors, RENDER.module(), state.settings
     splats = (t.means2d, t.conics, t.opacities, t.radii, t.features, t.gids, t.offsets, t.t_final, t.count)
     rows = ext.composite_backward(*splats, state.groups, *_split_grads(grad_out), *state.args)
-    world = (t.means, t.w2c, t.means_cam, t.scales, t.opacities, rows, state.groups[1], need_params, need_pose)
+    means = t.means if t.ids is None else t.means.index_select(0, t.ids)  # [M, 3]
+    world = (means, t.w2c, t.means_cam, t.scales, t.opacities, rows, state.groups[1], need_params, need_pose)
     cuts = (s.near_plane, s.eps2d, torch.get_num_threads())
     g_m, g_ls, g_lo, g_col, g_sem, g_pose = ext.world_isotropic_backward(*world, *state.cam, *cuts)
     pose_grad = g_pose if need_pose else None
     if not need_params:  # tracking: the map is fixed, only the pose gets a gradient
         return None, None, None, None, None, pose_grad
-    return g_m, g_ls[:, None], g_lo, g_col, g_sem, pose_grad
+    g_m, g_ls, g_lo, g_col, g_sem = _uncull(t.ids, state.num_gaussians, (g_m, g_ls[:, None], g_lo, g_col, g_sem))
+    return g_m, g_ls, g_lo, g_col, g_sem, pose_grad
 
 
 class _CppWorldIsotropicRender(torch.autograd.Function):
