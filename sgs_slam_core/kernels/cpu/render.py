@@ -122,12 +122,12 @@ def frustum_cull(
     cam: CameraArgs,
     s: RenderSettings,
 ) -> Tensor | None:  # [M] int64 ascending, or None: every Gaussian
-    """The Gaussians that may touch the image (``frustum_candidates`` in ``raster.cpp``; its
-    PyTorch reference is :func:`sgs_slam_core.render.projection.frustum_candidates`).
+    """The Gaussians that may touch the image, by ``frustum_candidates`` in ``raster.cpp``.
 
-    A render of these alone is the whole map's, bit for bit: the kernels composite the kept ones in
-    the same order and skip the rest. The cost of a render then follows what the camera sees, not
-    the map's size. None (no culling) for double maps and when culling would leave out less than
+    Its PyTorch reference is :func:`sgs_slam_core.render.projection.frustum_candidates`. A render
+    of these alone is the whole map's, bit for bit: the kernels composite the kept ones in the same
+    order and skip the rest. The cost of a render then follows what the camera sees, not the map's
+    size. None (no culling) for double maps and when culling would leave out less than
     ``CULL_MIN_SHARE`` of the map.
     """
     if means.dtype != torch.float32:
