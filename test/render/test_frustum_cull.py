@@ -100,3 +100,14 @@ def test_double_maps_are_not_culled():
     gm, k = random_scene(50, 16, 12, dtype=torch.float64)
     cam = cpu_render.CameraArgs.of(k)
     assert cpu_render.frustum_cull(gm.means, gm.log_scales, pose(torch.float64), cam, RenderSettings()) is None
+
+
+def test_rows_out_of_range_are_refused():
+    gm, k = random_scene(20, 16, 12)
+    s, ext = RenderSettings(), RENDER.module()
+    cam = (k.fx, k.fy, k.cx, k.cy, k.width, k.height, s.near_plane, s.eps2d, s.alpha_min, s.extent_sigma, 1)
+    params = (gm.means, gm.log_scales, gm.logit_opacities, gm.colors, gm.semantics, pose())
+    with pytest.raises(RuntimeError, match="rows must index"):
+        ext.prepare_world_rows(*params, *cam, torch.tensor([3, 20]))
+    with pytest.raises(RuntimeError, match="must be"):
+        ext.frustum_candidates(gm.means[:, :2].contiguous(), gm.log_scales, pose(), *cam[:8], s.extent_sigma, 1)

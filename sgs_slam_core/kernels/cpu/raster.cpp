@@ -1227,6 +1227,8 @@ std::vector<torch::Tensor> prepare_world_rows(torch::Tensor means, torch::Tensor
   if (rows) {
     picked = rows->contiguous();
     TORCH_CHECK(picked.scalar_type() == torch::kInt64 && picked.dim() == 1, "prepare_world_isotropic: rows must be [M] int64");
+    TORCH_CHECK(picked.numel() == 0 || (picked.min().item<int64_t>() >= 0 && picked.max().item<int64_t>() < total),
+                "prepare_world_isotropic: rows must index the ", total, " Gaussians");
   }
   const int64_t n = rows ? picked.size(0) : total;
   const int64_t* pr = rows ? picked.data_ptr<int64_t>() : nullptr;
@@ -1350,7 +1352,8 @@ torch::Tensor frustum_candidates(torch::Tensor means, torch::Tensor log_scales, 
   log_scales = log_scales.contiguous().to(torch::kFloat32);
   const auto pose = w2c.contiguous().to(torch::kFloat32);
   const int64_t n = means.size(0);
-  TORCH_CHECK(log_scales.numel() == n && pose.numel() == 16, "frustum_candidates: inconsistent shapes");
+  TORCH_CHECK(means.dim() == 2 && means.size(1) == 3 && log_scales.numel() == n && pose.numel() == 16,
+              "frustum_candidates: means must be [N, 3], log_scales [N], w2c [4, 4]");
   const Camera k{fx, fy, cx, cy, width, height, near, eps2d, 0.0, extent_sigma};
   const Proj<float> pk(k);
   const float tx = std::max(std::abs(pk.lx0), std::abs(pk.lx1)), ty = std::max(std::abs(pk.ly0), std::abs(pk.ly1));
