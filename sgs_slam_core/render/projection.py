@@ -52,9 +52,7 @@ def project_gaussians(
     u = fx * x_over_z + cx
     v = fy * y_over_z + cy
 
-    tan_x, tan_y = 0.5 * intrinsics.width / fx, 0.5 * intrinsics.height / fy
-    lim_x_lo, lim_x_hi = -(cx + 0.5) / fx - 0.3 * tan_x, (intrinsics.width - cx - 0.5) / fx + 0.3 * tan_x
-    lim_y_lo, lim_y_hi = -(cy + 0.5) / fy - 0.3 * tan_y, (intrinsics.height - cy - 0.5) / fy + 0.3 * tan_y
+    (lim_x_lo, lim_x_hi), (lim_y_lo, lim_y_hi) = _tangent_limits(intrinsics)
     tx = x_over_z.clamp(lim_x_lo, lim_x_hi)
     ty = y_over_z.clamp(lim_y_lo, lim_y_hi)
     inv_z = 1.0 / z_safe
@@ -83,6 +81,14 @@ def project_gaussians(
         opacities=opacities,
         radii=_radii(a, b, c, opacities, in_front, settings),
     )
+
+
+def _tangent_limits(k: Intrinsics) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The clamp of x/z and y/z (low, high): the field of view widened by 0.3 of its half-tangent a side."""
+    tan_x, tan_y = 0.5 * k.width / k.fx, 0.5 * k.height / k.fy
+    x = (-(k.cx + 0.5) / k.fx - 0.3 * tan_x, (k.width - k.cx - 0.5) / k.fx + 0.3 * tan_x)
+    y = (-(k.cy + 0.5) / k.fy - 0.3 * tan_y, (k.height - k.cy - 0.5) / k.fy + 0.3 * tan_y)
+    return x, y
 
 
 @torch.no_grad()
@@ -117,9 +123,7 @@ def frustum_candidates(
     k = intrinsics
     cam = means @ w2c[:3, :3].T + w2c[:3, 3]
     x, y, z = cam.unbind(-1)
-    tan_x, tan_y = 0.5 * k.width / k.fx, 0.5 * k.height / k.fy
-    tx = max(abs(-(k.cx + 0.5) / k.fx - 0.3 * tan_x), abs((k.width - k.cx - 0.5) / k.fx + 0.3 * tan_x))
-    ty = max(abs(-(k.cy + 0.5) / k.fy - 0.3 * tan_y), abs((k.height - k.cy - 0.5) / k.fy + 0.3 * tan_y))
+    tx, ty = (max(abs(lo), abs(hi)) for lo, hi in _tangent_limits(k))
     k2 = k.fx**2 * (1 + tx * tx) + k.fy**2 * (1 + ty * ty) + k.fx * k.fy * tx * ty
     exponent = (torch.floor(log_scales.reshape(-1) * 1.44269504) + 1.0).nan_to_num(127.0).clamp(-126.0, 127.0)
     inv_z = 1.0 / z

@@ -1227,8 +1227,11 @@ std::vector<torch::Tensor> prepare_world_rows(torch::Tensor means, torch::Tensor
   if (rows) {
     picked = rows->contiguous();
     TORCH_CHECK(picked.scalar_type() == torch::kInt64 && picked.dim() == 1, "prepare_world_isotropic: rows must be [M] int64");
-    TORCH_CHECK(picked.numel() == 0 || (picked.min().item<int64_t>() >= 0 && picked.max().item<int64_t>() < total),
-                "prepare_world_isotropic: rows must index the ", total, " Gaussians");
+    if (picked.numel()) {  // one pass for both bounds
+      const auto [lo, hi] = torch::aminmax(picked);
+      TORCH_CHECK(lo.item<int64_t>() >= 0 && hi.item<int64_t>() < total, "prepare_world_isotropic: rows must index the ",
+                  total, " Gaussians");
+    }
   }
   const int64_t n = rows ? picked.size(0) : total;
   const int64_t* pr = rows ? picked.data_ptr<int64_t>() : nullptr;
