@@ -524,6 +524,10 @@ class GuardSettings:
             (``slam.guard``'s constants).
         lost_after: this many flagged frames in a row mean the camera is lost: nothing is mapped
             and every frame is relocalized until one is found again (0 = never lost).
+        max_feature_frames: at most this many frames in a row take their features' pose when the
+            tracker's fails (0 = no limit); the next such frame counts towards ``lost_after``: each
+            feature pose chains on the last accepted frame, and a chain the map keeps disagreeing
+            with has drifted from it.
         relocalize_min_inliers: a lost frame is tracked from at most 3 candidate poses (the keyframes
             whose features match it best, and the last accepted frame's, each solved by PnP first:
             ``slam.localization.RELOCALIZE_CANDIDATES``); a candidate needs this many feature matches
@@ -537,11 +541,13 @@ class GuardSettings:
     retry: bool = True
     min_feature_agreement: float = 0.7
     lost_after: int = 2
+    max_feature_frames: int = 20
     relocalize_min_inliers: int = 30
 
     def __post_init__(self) -> None:
         _positive("guard", residual_jump=self.residual_jump, loss_jump=self.loss_jump)
-        _non_negative("guard", warmup_frames=self.warmup_frames, lost_after=self.lost_after)
+        counts = {"lost_after": self.lost_after, "max_feature_frames": self.max_feature_frames}
+        _non_negative("guard", warmup_frames=self.warmup_frames, **counts)
         if not 0 <= self.min_feature_agreement <= 1:
             raise ConfigError(f"guard.min_feature_agreement must be in [0, 1], got {self.min_feature_agreement}")
         if self.relocalize_min_inliers < 6:

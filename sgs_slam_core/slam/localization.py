@@ -96,7 +96,8 @@ class Localizer:
         A frame that still fails takes the pose its features give against the last accepted frame,
         where they give one with ``guard.relocalize_min_inliers``: judged as a tracked pose would
         be, it is accepted (and mapped) if it passes; otherwise the frame fails with it (not
-        mapped), but the camera is not lost.
+        mapped), but the camera is not lost. After ``guard.max_feature_frames`` frames in a row
+        placed so, a failed frame fails as one without features would.
         """
         start = self.motion.start(frame.stamp_ns, data, view)
         w2c = np.linalg.inv(start.c2w)
@@ -106,9 +107,13 @@ class Localizer:
             second = view.c2w if view is not None and view.c2w is not None and not start.from_features else None
             result, failure = self._retried(gaussians, data, second, use_sem, result, failure, view)
         located = failure is not None and view is not None and view.inliers >= self.config.guard.relocalize_min_inliers
-        if located:
+        on_features = False
+        if located and not self.guard.trusts_features:
+            located, failure = False, f"{failure}; the features alone placed too many frames in a row"
+        elif located:
             result, failure = self._feature_pose(gaussians, data, view, use_sem, result, failure)
-        return Localization(result, failure, self.guard.settle(failure is not None, located))
+            on_features = failure is None
+        return Localization(result, failure, self.guard.settle(failure is not None, located, on_features))
 
     def _retried(
         self,

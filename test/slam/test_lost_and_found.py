@@ -39,6 +39,22 @@ def test_failures_in_a_row_lose_the_camera_until_it_is_relocalized():
     assert all(never.settle(True) == "ok" for _ in range(5))
 
 
+def test_features_alone_place_at_most_max_feature_frames_in_a_row():
+    guard = TrackingGuard(GuardSettings(lost_after=2, max_feature_frames=3))
+    for _ in range(2):
+        assert guard.settle(False, located=True, on_features=True) == "ok"
+    assert guard.settle(True, located=True) == "ok"  # a feature pose the guard refused: the streak holds
+    assert guard.settle(False, located=True, on_features=True) == "ok" and not guard.trusts_features
+    assert guard.settle(True) == "ok" and guard.settle(True) == "lost"  # failures count again
+    assert guard.relocalized() == "relocalized" and guard.trusts_features
+    for _ in range(2):
+        guard.settle(False, located=True, on_features=True)
+    assert guard.settle(False) == "ok" and guard.trusts_features  # the tracker's own pose ends a streak
+    unlimited = TrackingGuard(GuardSettings(max_feature_frames=0))
+    assert all(unlimited.settle(False, located=True, on_features=True) == "ok" for _ in range(50))
+    assert unlimited.trusts_features
+
+
 def features(agreement: float, inliers: int = 100, turn_deg: float = 0.5) -> FeatureEvidence:
     return FeatureEvidence(agreement, inliers, turn_deg)
 
@@ -152,6 +168,28 @@ def test_a_pose_the_features_contradict_gives_way_to_the_features_pose():
     assert not step.track.failed and step.track.state == "ok"
     assert np.linalg.norm(step.c2w[:3, 3] - truth[:3, 3]) < 0.05  # the features' pose, judged and accepted
     assert step.map.stats is not None  # and mapped
+
+
+def test_a_tracker_the_features_keep_contradicting_loses_the_camera():
+    """The features' pose is taken for ``guard.max_feature_frames`` frames; then the camera is lost, not mapped."""
+    slam = Slam(load_config("synthetic", overrides=["mapping.iterations=5", "guard.max_feature_frames=3"]))
+    for i in range(8):
+        slam.process(room_frame(i))
+    track = slam.tracker.track
+
+    def sliding(gaussians, frame, init_w2c, *args, **kwargs):
+        result = track(gaussians, frame, init_w2c, *args, **kwargs)
+        slid = result.w2c.copy()
+        slid[0, 3] += 0.15
+        return dataclasses.replace(result, w2c=slid, rendering=None)
+
+    slam.tracker.track = sliding
+    steps = [slam.process(room_frame(i)) for i in range(8, 14)]
+    assert [(s.track.failed, s.track.state) for s in steps[:3]] == [(False, "ok")] * 3
+    assert [(s.track.failed, s.track.state) for s in steps[3:]] == [(True, "ok"), (True, "lost"), (True, "lost")]
+    assert "too many frames in a row" in steps[3].track.failure_reason
+    for step in steps[3:]:
+        assert step.map.stats is None and step.map.added == 0
 
 
 def test_a_map_resumed_after_a_restart_is_relocalized_in_before_it_is_mapped_again():
