@@ -149,9 +149,9 @@ def test_a_kidnapped_camera_is_lost_at_once_and_found_again(kidnapped):
     assert counts.lost_events == 1 and counts.relocalizations == 1 and counts.frames_while_lost == found - first_lost
 
 
-def test_a_pose_the_features_contradict_gives_way_to_the_features_pose():
-    """Tracking that slides off (as over a plane) is caught by the features, whose pose is then judged and kept."""
-    slam = Slam(load_config("synthetic", overrides=["mapping.iterations=5"]))
+def sliding_slam(overrides: list[str]) -> Slam:
+    """A SLAM that tracked the orbit's frames 0-7, whose tracker from then on slides every pose 15 cm sideways."""
+    slam = Slam(load_config("synthetic", overrides=overrides))
     for i in range(8):
         slam.process(room_frame(i))
     track = slam.tracker.track
@@ -163,6 +163,12 @@ def test_a_pose_the_features_contradict_gives_way_to_the_features_pose():
         return dataclasses.replace(result, w2c=slid, rendering=None)
 
     slam.tracker.track = sliding
+    return slam
+
+
+def test_a_pose_the_features_contradict_gives_way_to_the_features_pose():
+    """Tracking that slides off (as over a plane) is caught by the features, whose pose is then judged and kept."""
+    slam = sliding_slam(["mapping.iterations=5"])
     step = slam.process(room_frame(8))
     truth = np.linalg.inv(poses()[0]) @ poses()[8]
     assert not step.track.failed and step.track.state == "ok"
@@ -172,18 +178,7 @@ def test_a_pose_the_features_contradict_gives_way_to_the_features_pose():
 
 def test_a_tracker_the_features_keep_contradicting_loses_the_camera():
     """The features' pose is taken for ``guard.max_feature_frames`` frames; then the camera is lost, not mapped."""
-    slam = Slam(load_config("synthetic", overrides=["mapping.iterations=5", "guard.max_feature_frames=3"]))
-    for i in range(8):
-        slam.process(room_frame(i))
-    track = slam.tracker.track
-
-    def sliding(gaussians, frame, init_w2c, *args, **kwargs):
-        result = track(gaussians, frame, init_w2c, *args, **kwargs)
-        slid = result.w2c.copy()
-        slid[0, 3] += 0.15
-        return dataclasses.replace(result, w2c=slid, rendering=None)
-
-    slam.tracker.track = sliding
+    slam = sliding_slam(["mapping.iterations=5", "guard.max_feature_frames=3"])
     steps = [slam.process(room_frame(i)) for i in range(8, 14)]
     assert [(s.track.failed, s.track.state) for s in steps[:3]] == [(False, "ok")] * 3
     assert [(s.track.failed, s.track.state) for s in steps[3:]] == [(True, "ok"), (True, "lost"), (True, "lost")]
