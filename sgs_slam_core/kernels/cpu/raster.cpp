@@ -1222,14 +1222,14 @@ std::vector<torch::Tensor> prepare_world_rows(torch::Tensor means, torch::Tensor
   const int64_t total = means.size(0), ns = semantics.size(1), d = 3 + ns + 1;
   TORCH_CHECK(log_scales.numel() == total && logit_opacities.numel() == total && colors.size(0) == total &&
                   colors.size(1) == 3 && semantics.size(0) == total && w2c.numel() == 16,
-              "prepare_world_isotropic: inconsistent shapes");
+              "prepare_world_rows: inconsistent shapes");
   torch::Tensor picked;
   if (rows) {
     picked = rows->contiguous();
-    TORCH_CHECK(picked.scalar_type() == torch::kInt64 && picked.dim() == 1, "prepare_world_isotropic: rows must be [M] int64");
+    TORCH_CHECK(picked.scalar_type() == torch::kInt64 && picked.dim() == 1, "prepare_world_rows: rows must be [M] int64");
     if (picked.numel()) {  // one pass for both bounds
       const auto [lo, hi] = torch::aminmax(picked);
-      TORCH_CHECK(lo.item<int64_t>() >= 0 && hi.item<int64_t>() < total, "prepare_world_isotropic: rows must index the ",
+      TORCH_CHECK(lo.item<int64_t>() >= 0 && hi.item<int64_t>() < total, "prepare_world_rows: rows must index the ",
                   total, " Gaussians");
     }
   }
@@ -1240,7 +1240,7 @@ std::vector<torch::Tensor> prepare_world_rows(torch::Tensor means, torch::Tensor
   auto mc = torch::empty({n, 3}, opts), sc = torch::empty({n}, opts), op = torch::empty({n}, opts);
   auto feats = torch::empty({n, d}, opts);
   auto m2d = torch::empty({n, 2}, opts), con = torch::empty({n, 3}, opts), rad = torch::empty({n}, opts);
-  AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "prepare_world_isotropic", [&] {
+  AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "prepare_world_rows", [&] {
     using T = scalar_t;
     const T* m = means.data_ptr<T>();
     const T* ls = log_scales.data_ptr<T>();
