@@ -178,12 +178,9 @@ class TrackingGuard:
         if self.state == "lost":
             self._frames_while_lost += 1
             return self.state
-        if on_features:
-            self._feature_streak += 1
-        elif not failed:  # the tracker's own pose passed
-            self._feature_streak = 0
-        if not failed:
+        if not failed:  # a streak grows with each feature pose and ends at the tracker's own
             self._failures_in_row = 0
+            self._feature_streak = self._feature_streak + 1 if on_features else 0
         elif not located:
             self._failures_in_row += 1
         if failed and self.s.lost_after and self._failures_in_row >= self.s.lost_after:
