@@ -84,7 +84,9 @@ def ros_run(bag: Path, args: argparse.Namespace, model: str | None) -> Outcome:
     from bench.pose_recorder import PoseRecorder  # noqa: PLC0415 - rclpy only for this run
 
     domain = random.randint(1, 100)
-    params = ("map_alignment:=optical", f"threads:={args.slam_threads}")
+    params: tuple[str, ...] = ("map_alignment:=optical", f"threads:={args.slam_threads}")
+    if args.set:  # core config overrides, one list parameter
+        params += (f"overrides:={args.set!r}",)
     remaps = (*(r for r in REMAPS if not r.startswith("semantic/image:=")), f"semantic/image:={LABELS_TOPIC}")
     side: tuple[str, ...] = ()
     if model is not None:
@@ -152,6 +154,7 @@ def main() -> int:
     p.add_argument("--seg-threads", type=int, default=0, help="segmentation_node's threads parameter (0: default)")
     p.add_argument("--seg-rate-hz", type=float, default=0.0, help="segmentation_node's max_rate_hz (0: uncapped)")
     p.add_argument("--slam-threads", type=int, default=0, help="slam_node's threads parameter (0: default)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="slam_node's core config overrides")
     p.add_argument("--compress", choices=["zstd", "none"], default="zstd", help="chunks of the bag a dataset becomes")
     p.add_argument("--repeats", type=int, default=2, help="replays of each (a live run varies run to run)")
     p.add_argument("--no-append", action="store_true")

@@ -92,7 +92,7 @@ class SemanticCodec:
             return torch.nn.functional.one_hot(labels, k).to(torch.float32)
         if labels.numel() == 0:
             return labels.new_zeros((*labels.shape, 3), dtype=torch.float32)
-        lo, hi = (int(v) for v in torch.aminmax(labels))
+        lo, hi = torch.stack(tuple(torch.aminmax(labels))).tolist()  # one read of the device
         if lo < 0 or hi >= _PALETTE_IDS:
             return self.encode_by_unique(labels)
         return self._palette(hi + 1, labels.device)[labels]

@@ -172,7 +172,7 @@ class IcpLevel:
 class IcpResult:
     """The aligned pose and how well the two depth images agree at it."""
 
-    src_to_ref: Tensor  # [4, 4] float64: source camera frame -> reference camera frame
+    src_to_ref: Tensor  # [4, 4] float64 on the host: source camera frame -> reference camera frame
     inlier_fraction: float  # source pixels with a correspondence at the result, over source pixels with depth
     rms_m: float  # RMS point-to-plane residual over those correspondences (m)
 
@@ -652,6 +652,8 @@ def align_depth(
 ) -> IcpResult:
     """Refine ``init_src_to_ref`` so the source depth lies on the reference surface (one host read)."""
     result = align_device(depth, intrinsics, reference, init_src_to_ref, s, kernels=kernels)
-    count_f, sq_f, total_f = torch.stack([result.inliers, result.sum_sq_m2, result.valid_source]).tolist()
+    stats = torch.stack([result.inliers, result.sum_sq_m2, result.valid_source])
+    host = torch.cat([result.src_to_ref.reshape(-1), stats]).cpu()  # the pose and its statistics in one read
+    count_f, sq_f, total_f = host[16:].tolist()
     rms = (sq_f / count_f) ** 0.5 if count_f > 0 else float("inf")
-    return IcpResult(result.src_to_ref, count_f / total_f if total_f > 0 else 0.0, rms)
+    return IcpResult(host[:16].reshape(4, 4), count_f / total_f if total_f > 0 else 0.0, rms)

@@ -137,4 +137,4 @@ class IcpInit:
         outcome = IcpOutcome(used, result.inlier_fraction, result.rms_m)
         if not used:
             return predicted_c2w, outcome
-        return ref.c2w @ result.src_to_ref.cpu().numpy(), outcome
+        return ref.c2w @ result.src_to_ref.numpy(), outcome

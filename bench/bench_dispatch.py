@@ -1,0 +1,233 @@
+"""Dispatched tensor ops and host reads per tracked frame and per mapping step, renders excluded.
+
+The SLAM runs on the pure-PyTorch kernels (``render.backend=torch``): on a GPU every op the
+dispatcher sees there is at least one kernel launch, and every host read a synchronisation, so
+these counts say on any machine what a frame costs a GPU in launches. Counted with a
+``TorchDispatchMode`` after ``--warmup`` frames:
+
+- a tracked frame: everything ``Slam.track`` dispatches, the map's renders left out;
+- a mapping step: the ops between two steps of ``Slam.map``'s window, less the render's backward
+  (its forward is left out as in tracking; its backward is counted once on its own and subtracted).
+
+Host reads: ``item()`` / ``float()`` / ``bool()`` of a tensor, ops whose output size depends on the
+data (``nonzero``, boolean indexing, ``unique``, ``masked_select``, ...), and ``tolist()`` / ``cpu()``
+calls.
+
+    python bench/bench_dispatch.py [INPUT] [--downscale 2] [--frames 10] [--warmup 8] [--set KEY=VALUE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import itertools
+import sys
+import weakref
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils._python_dispatch import TorchDispatchMode
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.common import append_section, command_line, commit, machine, markdown_table
+from sgs_slam_core.cli.demo import default_room_dir, ensure_room
+from sgs_slam_core.cli.run import default_preset
+from sgs_slam_core.config import load_config
+from sgs_slam_core.datasets import DatasetOptions, open_dataset
+from sgs_slam_core.slam.system import Slam
+
+# Ops that read the device's data on the host: a scalar read, or an output sized by the data.
+HOST_READ_OPS = frozenset(
+    {"_local_scalar_dense", "nonzero", "masked_select", "_unique", "_unique2", "unique_dim", "unique_consecutive",
+     "unique_dim_consecutive", "repeat_interleave", "equal", "is_nonzero", "allclose", "masked_scatter"}
+)  # fmt: skip
+_BOOL_INDEXED = frozenset({"index", "index_put", "index_put_", "_index_put_impl_"})
+# Tensor methods that bring a device's data to the host (neither dispatches on the CPU); ``numpy()`` is
+# not one: on a GPU it needs a host tensor, so the ``cpu()`` before it was the read.
+_TENSOR_READS = ("tolist", "cpu")
+
+
+def _bool_index(args: tuple[Any, ...]) -> bool:
+    """An index op given a boolean mask: its output size is the mask's count (a read on a GPU)."""
+    indices = args[1] if len(args) > 1 and isinstance(args[1], (list, tuple)) else ()
+    return any(isinstance(i, torch.Tensor) and i.dtype == torch.bool for i in indices)
+
+
+class OpCounter(TorchDispatchMode):
+    """Counts every dispatched op (by name) and the host reads among them while active and not paused."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.ops: Counter[str] = Counter()
+        self.host_reads: Counter[str] = Counter()
+        self._paused = 0
+        # storages a cpu() call brought over (reading them again is free), while its tensor lives
+        self._host: dict[int, weakref.ref[torch.Tensor]] = {}
+
+    def __torch_dispatch__(self, func: Any, types: Any, args: tuple[Any, ...] = (), kwargs: dict | None = None) -> Any:
+        if not self._paused:
+            name = func.overloadpacket.__name__
+            self.ops[name] += 1
+            if name in HOST_READ_OPS or (name in _BOOL_INDEXED and _bool_index(args)):
+                self.host_reads[name] += 1
+        return func(*args, **(kwargs or {}))
+
+    @property
+    def total(self) -> tuple[int, int]:
+        """(ops, host reads) so far."""
+        return sum(self.ops.values()), sum(self.host_reads.values())
+
+    @contextlib.contextmanager
+    def paused(self) -> Iterator[None]:
+        """Nothing inside is counted."""
+        self._paused += 1
+        try:
+            yield
+        finally:
+            self._paused -= 1
+
+    def count_read(self, name: str, tensor: torch.Tensor) -> None:
+        """A ``tolist()`` / ``cpu()`` of ``tensor``: a read unless an earlier ``cpu()`` brought its storage over."""
+        storage = tensor.untyped_storage().data_ptr()
+        brought = self._host.get(storage)
+        if not self._paused and (brought is None or brought() is None):
+            self.host_reads[name] += 1
+        if name == "cpu":
+            self._host[storage] = weakref.ref(tensor)
+
+    @contextlib.contextmanager
+    def active(self) -> Iterator[OpCounter]:
+        """Count inside, ``Tensor.tolist`` / ``cpu`` calls included as host reads."""
+        originals = {name: getattr(torch.Tensor, name) for name in _TENSOR_READS}
+
+        def reader(name: str, method: Callable[..., Any]) -> Callable[..., Any]:
+            def read(tensor: torch.Tensor, *args: Any, **kwargs: Any) -> Any:
+                self.count_read(name, tensor)
+                return method(tensor, *args, **kwargs)
+
+            return read
+
+        for name, method in originals.items():
+            setattr(torch.Tensor, name, reader(name, method))
+        try:
+            with self:
+                yield self
+        finally:
+            for name, method in originals.items():
+                setattr(torch.Tensor, name, method)
+
+
+@dataclass
+class Counts:
+    """Per-unit means (ops, host reads) and the busiest op names."""
+
+    ops: list[int]
+    reads: list[int]
+    top: Counter[str]
+
+    def row(self, what: str) -> list[object]:
+        busiest = ", ".join(f"{name} {n / max(len(self.ops), 1):.0f}" for name, n in self.top.most_common(6))
+        return [what, len(self.ops), f"{np.mean(self.ops):.0f}", f"{max(self.ops)}", f"{np.mean(self.reads):.1f}",
+                busiest]  # fmt: skip
+
+
+def _render_paused(slam: Slam, counter: OpCounter) -> None:
+    """Leave the map's renders (forward) out of the counts."""
+    render = slam.kernels.render
+
+    def paused_render(*args: Any, **kwargs: Any) -> Any:
+        with counter.paused():
+            return render(*args, **kwargs)
+
+    slam.kernels.render = paused_render  # type: ignore[method-assign]
+
+
+def render_backward_ops(slam: Slam, frame: Any) -> int:
+    """Ops of one render's backward at the last tracked pose (the map's parameters requiring grad)."""
+    g = slam.gaussians
+    names = ["means", "log_scales", "logit_opacities", "colors", "semantics"]
+    names += ["quats"] if g.quats is not None else []
+    leaf = g.with_tensors(**{name: getattr(g, name).detach().clone().requires_grad_(True) for name in names})
+    c2w = torch.as_tensor(slam.trajectory[-1][2], dtype=torch.float32, device=slam.device)
+    out = slam.kernels.render(leaf, frame.intrinsics, torch.linalg.inv(c2w), with_semantics=True)
+    loss = out.color.sum() + out.depth.sum() + out.silhouette.sum() + out.semantic.sum()
+    counter = OpCounter()
+    with counter.active():
+        loss.backward()
+    return counter.total[0]
+
+
+def count_frame(slam: Slam, frame: Any, counter: OpCounter, track: Counts, steps: Counts) -> None:
+    """Track and map ``frame``, adding its tracking count to ``track`` and each whole mapping step's to ``steps``."""
+    marks: list[tuple[tuple[int, int], Counter[str]]] = []
+
+    def between() -> bool:  # before each mapping step: where the last one ended
+        marks.append((counter.total, counter.ops.copy()))
+        return True
+
+    with counter.active():
+        before, before_ops = counter.total, counter.ops.copy()
+        tracked = slam.track(frame)
+        track.ops.append(counter.total[0] - before[0])
+        track.reads.append(counter.total[1] - before[1])
+        track.top.update(counter.ops - before_ops)
+        slam.map(frame, tracked, between)
+    for (a, ops_a), (b, ops_b) in itertools.pairwise(marks):  # the steps another step follows: whole steps
+        steps.ops.append(b[0] - a[0])
+        steps.reads.append(b[1] - a[1])
+        steps.top.update(ops_b - ops_a)
+
+
+def measure(args: argparse.Namespace) -> tuple[Counts, Counts, int]:
+    """Run the SLAM, count ``--frames`` frames after ``--warmup``: (tracked frames, mapping steps, render backward)."""
+    source = args.input or ensure_room(default_room_dir())
+    dataset = open_dataset(source, options=DatasetOptions(downscale=args.downscale))
+    overrides = ["render.backend=torch", "tracking.method=gauss_newton", *args.overrides]
+    slam = Slam(load_config(args.preset or default_preset(source, "auto"), None, overrides))
+    counter = OpCounter()
+    _render_paused(slam, counter)
+    track, steps = Counts([], [], Counter()), Counts([], [], Counter())
+    last = min(args.warmup + args.frames, len(dataset))
+    for i in range(last):
+        if i < args.warmup:
+            frame = dataset[i]
+            slam.map(frame, slam.track(frame))
+        else:
+            count_frame(slam, dataset[i], counter, track, steps)
+    return track, steps, render_backward_ops(slam, dataset[last - 1])
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("input", type=Path, nargs="?", help="a dataset folder (default: the synthetic room)")
+    p.add_argument("--downscale", type=float, default=2.0, help="the room is 320x240: 2 gives 160x120")
+    p.add_argument("--preset", help="config preset (default: chosen from the dataset)")
+    p.add_argument("--frames", type=int, default=10, help="frames counted")
+    p.add_argument("--warmup", type=int, default=8, help="frames run before counting (the map and the motion model)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    p.add_argument("--no-append", action="store_true", help="print only; do not append to BENCHMARKS.md")
+    args = p.parse_args()
+    torch.manual_seed(0)
+    track, steps, backward = measure(args)
+    step_less = Counts([n - backward for n in steps.ops], steps.reads, Counter())
+    headers = ["unit", "counted", "ops (mean)", "ops (max)", "host reads (mean)", "busiest ops (per unit)"]
+    rows = [track.row("tracked frame, renders left out"),
+            steps.row("mapping step, render forward left out"),
+            [*step_less.row("mapping step, render forward and backward left out")[:-1], "-"],
+            ["render backward (counted alone)", 1, backward, backward, "-", "-"]]  # fmt: skip
+    text = markdown_table(headers, rows)
+    print(text)
+    if not args.no_append:
+        note = f"{machine()}; {commit()}; `{command_line()}`"
+        append_section("Dispatched ops and host reads", note + "\n\n" + text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,35 @@
+"""The dispatch counter counts what it claims: every op, the host reads among them, nothing while paused."""
+
+from __future__ import annotations
+
+import torch
+
+from bench.bench_dispatch import OpCounter
+
+
+def test_counts_ops_and_host_reads():
+    x = torch.arange(6.0)
+    counter = OpCounter()
+    with counter.active():
+        y = (x * 2 + 1).sum()  # mul, add, sum: no read
+        value = float(y)  # a scalar read
+        picked = x[x > 2]  # gt, then indexing by a mask: its size is the data's
+        listed = picked.tolist()  # a read that never reaches the dispatcher on the CPU
+        host = (x * 2).cpu()  # a read ...
+        again = host[1:].tolist()  # ... and its data already on the host: none
+    assert value == 36.0 and listed == [3.0, 4.0, 5.0] and again == [2.0, 4.0, 6.0, 8.0, 10.0]
+    assert counter.ops["mul"] == 2 and counter.ops["add"] == 1 and counter.ops["sum"] == 1 and counter.ops["gt"] == 1
+    assert counter.host_reads["_local_scalar_dense"] == 1
+    assert counter.host_reads["index"] == 1
+    assert counter.host_reads["tolist"] == 1 and counter.host_reads["cpu"] == 1
+    assert counter.total == (sum(counter.ops.values()), 4)
+
+
+def test_nothing_is_counted_while_paused_or_after():
+    x = torch.ones(4)
+    counter = OpCounter()
+    with counter.active(), counter.paused():
+        _ = (x + 1).sum().item()
+    _ = (x * 3).numpy()  # the methods are restored: no count outside
+    assert counter.total == (0, 0)
+    assert torch.Tensor.tolist.__name__ == "tolist"
