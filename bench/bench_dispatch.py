@@ -125,7 +125,7 @@ class OpCounter(TorchDispatchMode):
 
 @dataclass
 class Counts:
-    """Per-unit means (ops, host reads) and the busiest op names."""
+    """Each counted unit's ops and host reads, and the op names summed over the units."""
 
     ops: list[int]
     reads: list[int]
