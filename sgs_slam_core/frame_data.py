@@ -42,13 +42,14 @@ class FrameTensors:
     ) -> FrameTensors:
         """Upload and encode one frame's arrays."""
         lab = torch.from_numpy(labels.astype(np.int64)).to(device) if labels is not None else None
+        ids = (int(labels.min()), int(labels.max())) if labels is not None and labels.size else None  # on the host
         return FrameTensors(
             index=index,
             intrinsics=intrinsics,
             rgb=torch.from_numpy(rgb).to(device).float() / 255.0,
             depth=torch.from_numpy(depth.astype(np.float32)).to(device),
             labels=lab,
-            semantic=codec.encode(lab) if lab is not None else None,
+            semantic=codec.encode(lab, ids) if lab is not None else None,
         )
 
     @staticmethod

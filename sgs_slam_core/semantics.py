@@ -80,19 +80,25 @@ class SemanticCodec:
         """Palette colours of ``ids`` in [0, 1]."""
         return torch.tensor([self.table.color_of(i) for i in ids], dtype=torch.float32, device=device) / 255.0
 
-    def encode(self, labels: Tensor) -> Tensor:  # [...] int64 -> [..., S] float32
-        """Semantic targets of a label image."""
+    def encode(
+        self, labels: Tensor, value_range: tuple[int, int] | None = None
+    ) -> Tensor:  # [...] int64 -> [..., S] float32
+        """Semantic targets of a label image.
+
+        ``value_range``: the labels' (least, greatest) id where the caller has them on the host; else
+        they are read from the labels' device (one read).
+        """
         if labels.dtype not in (torch.int16, torch.int32, torch.int64, torch.uint8):
             raise ShapeError(f"labels must be an integer tensor, got {labels.dtype}")
         labels = labels.long()
+        if labels.numel() == 0:
+            return labels.new_zeros((*labels.shape, self.num_channels), dtype=torch.float32)
+        lo, hi = value_range if value_range is not None else torch.stack(tuple(torch.aminmax(labels))).tolist()
         if self.mode == "onehot":
             k = self.settings.num_classes
-            if labels.numel() and int(labels.max()) >= k:
-                raise FrameError(f"class id {int(labels.max())} >= semantic.num_classes={k}; raise num_classes")
+            if hi >= k:
+                raise FrameError(f"class id {hi} >= semantic.num_classes={k}; raise num_classes")
             return torch.nn.functional.one_hot(labels, k).to(torch.float32)
-        if labels.numel() == 0:
-            return labels.new_zeros((*labels.shape, 3), dtype=torch.float32)
-        lo, hi = torch.stack(tuple(torch.aminmax(labels))).tolist()  # one read of the device
         if lo < 0 or hi >= _PALETTE_IDS:
             return self.encode_by_unique(labels)
         return self._palette(hi + 1, labels.device)[labels]

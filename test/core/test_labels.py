@@ -45,6 +45,8 @@ def test_codec_round_trip(mode):
     labels = torch.tensor([[0, 1, 5], [40, 7, 7]])
     enc = codec.encode(labels)
     assert enc.shape == (2, 3, codec.num_channels)
+    assert torch.equal(codec.encode(labels, (0, 40)), enc)  # the range given from the host: the same targets
+    assert codec.encode(labels[:0], (0, 0)).shape == (0, 3, codec.num_channels)
     assert torch.equal(codec.decode(enc), labels)
     noisy = enc + 0.02 * torch.randn(enc.shape, generator=torch.Generator().manual_seed(0))
     assert torch.equal(codec.decode(noisy), labels)
@@ -68,6 +70,8 @@ def test_codec_candidates_and_errors():
     assert codec.decode(sem, candidates=[0, 2]).item() == 2
     with pytest.raises(FrameError, match="num_classes"):
         codec.encode(torch.tensor([4]))
+    with pytest.raises(FrameError, match="class id 4 "):
+        codec.encode(torch.tensor([4]), (4, 4))
     with pytest.raises(ShapeError, match="channels"):
         codec.decode(torch.zeros(2, 3))
     color = SemanticCodec(SemanticSettings(), LabelTable.nyu40())
