@@ -40,6 +40,7 @@ from sgs_slam_core.cli.demo import default_room_dir, ensure_room
 from sgs_slam_core.cli.run import default_preset
 from sgs_slam_core.config import load_config
 from sgs_slam_core.datasets import DatasetOptions, open_dataset
+from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.slam.system import Slam
 
 # Ops that read the device's data on the host: a scalar read, or an output sized by the data.
@@ -151,8 +152,7 @@ def _render_paused(slam: Slam, counter: OpCounter) -> None:
 def render_backward_ops(slam: Slam, frame: Any) -> int:
     """Ops of one render's backward at the last tracked pose (the map's parameters requiring grad)."""
     g = slam.gaussians
-    names = ["means", "log_scales", "logit_opacities", "colors", "semantics"]
-    names += ["quats"] if g.quats is not None else []
+    names = GaussianMap.optimised_fields(not g.isotropic)
     leaf = g.with_tensors(**{name: getattr(g, name).detach().clone().requires_grad_(True) for name in names})
     c2w = torch.as_tensor(slam.trajectory[-1][2], dtype=torch.float32, device=slam.device)
     out = slam.kernels.render(leaf, frame.intrinsics, torch.linalg.inv(c2w), with_semantics=True)
