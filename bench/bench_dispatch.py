@@ -13,6 +13,11 @@ Host reads: ``item()`` / ``float()`` / ``bool()`` of a tensor, ops whose output 
 data (``nonzero``, boolean indexing, ``unique``, ``masked_select``, ...), and ``tolist()`` / ``cpu()``
 calls.
 
+With ``--set render.compile=true`` the ICP's compiled graphs run as compiled while counted: a tracked
+frame's count is then the ops they still dispatch (matrix products, solves, allocations) plus every
+kernel Inductor generated for them that ran (each a launch, as its Triton kernel would be on a GPU),
+counted by the profiler on the CPU.
+
     python bench/bench_dispatch.py [INPUT] [--downscale 2] [--frames 10] [--warmup 8] [--set KEY=VALUE]
 """
 
@@ -31,6 +36,7 @@ from typing import Any
 
 import numpy as np
 import torch
+import torch._inductor.config
 from torch.utils._python_dispatch import TorchDispatchMode
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -49,6 +55,8 @@ HOST_READ_OPS = frozenset(
      "unique_dim_consecutive", "repeat_interleave", "equal", "is_nonzero", "allclose", "masked_scatter"}
 )  # fmt: skip
 _BOOL_INDEXED = frozenset({"index", "index_put", "index_put_", "_index_put_impl_"})
+# What the profiler calls Inductor's C++ kernels (``cpp.enable_kernel_profile``): graph_<n>_cpp_fused_<ops>
+INDUCTOR_KERNEL = "cpp_fused"
 # Tensor methods that bring a device's data to the host (neither dispatches on the CPU); ``numpy()`` is
 # not one: on a GPU it needs a host tensor, so the ``cpu()`` before it was the read.
 _TENSOR_READS = ("tolist", "cpu")
@@ -78,6 +86,11 @@ class OpCounter(TorchDispatchMode):
             if name in HOST_READ_OPS or (name in _BOOL_INDEXED and _bool_index(args)):
                 self.host_reads[name] += 1
         return func(*args, **(kwargs or {}))
+
+    @classmethod
+    def ignore_compile_internals(cls) -> bool:
+        """Compiled graphs run compiled while counted (else Dynamo runs them eagerly under a mode)."""
+        return True
 
     @property
     def total(self) -> tuple[int, int]:
@@ -122,6 +135,18 @@ class OpCounter(TorchDispatchMode):
         finally:
             for name, method in originals.items():
                 setattr(torch.Tensor, name, method)
+
+
+@contextlib.contextmanager
+def compiled_kernels() -> Iterator[Counter[str]]:
+    """Inductor's C++ kernels that ran inside, by name; filled when the block ends.
+
+    Needs ``torch._inductor.config.cpp.enable_kernel_profile`` set before they compile.
+    """
+    ran: Counter[str] = Counter()
+    with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) as prof:
+        yield ran
+    ran.update(event.name for event in prof.events() if INDUCTOR_KERNEL in event.name)
 
 
 @dataclass
@@ -173,10 +198,12 @@ def count_frame(slam: Slam, frame: Any, counter: OpCounter, track: Counts, steps
 
     with counter.active():
         before, before_ops = counter.total, counter.ops.copy()
-        tracked = slam.track(frame)
-        track.ops.append(counter.total[0] - before[0])
+        with compiled_kernels() as kernels:
+            tracked = slam.track(frame)
+        track.ops.append(counter.total[0] - before[0] + kernels.total())
         track.reads.append(counter.total[1] - before[1])
         track.top.update(counter.ops - before_ops)
+        track.top["compiled kernel"] += kernels.total()
         slam.map(frame, tracked, between)
     for (a, ops_a), (b, ops_b) in itertools.pairwise(marks):  # the steps another step follows: whole steps
         steps.ops.append(b[0] - a[0])
@@ -213,6 +240,7 @@ def main() -> int:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     p.add_argument("--no-append", action="store_true", help="print only; do not append to BENCHMARKS.md")
     args = p.parse_args()
+    torch._inductor.config.cpp.enable_kernel_profile = True  # before anything compiles (``render.compile``)
     torch.manual_seed(0)
     track, steps, backward = measure(args)
     step_less = Counts([n - backward for n in steps.ops], steps.reads, Counter())

@@ -24,9 +24,11 @@ from torch import Tensor
 from sgs_slam_core.errors import ShapeError
 from sgs_slam_core.geometry.camera import Intrinsics, vertex_map
 from sgs_slam_core.geometry.depth_noise import DepthNoise
+from sgs_slam_core.geometry.products import fusable_matmul
 from sgs_slam_core.geometry.se3 import se3_exp
 
 __all__ = [
+    "IcpJoint",
     "IcpKernels",
     "IcpLevel",
     "IcpLevelKernel",
@@ -41,6 +43,10 @@ __all__ = [
     "icp_pyramid",
     "refine_device",
     "source_channels",
+    "torch_joint_step",
+    "torch_level",
+    "torch_step",
+    "torch_terms",
 ]
 
 
@@ -79,6 +85,23 @@ class IcpSteps(Protocol):
         ...
 
 
+class IcpJoint(Protocol):
+    """The finest level's joint step with sparse observations in one call (a compiled form of it)."""
+
+    def __call__(
+        self,
+        src_to_ref: Tensor,  # [4, 4] float64
+        points: Tensor,  # [N, 3] float32 source points, z = 0 where invalid
+        values: Tensor | None,  # [N, C] float32 source channels
+        weights: Tensor | None,  # [N] float32 depth-noise weights of the source points
+        ref: IcpLevel,
+        s: IcpSettings,
+        observations: Observations,
+    ) -> Tensor:  # [4, 4] float64
+        """The pose after one damped step of the dense terms and the observations' together."""
+        ...
+
+
 class IcpLevelKernel(Protocol):
     """One reference level's packed rows in one call (a compiled form of this module's ``_level``)."""
 
@@ -94,6 +117,7 @@ class IcpKernels:
     terms: IcpTerms | None = None
     steps: IcpSteps | None = None
     level: IcpLevelKernel | None = None
+    joint: IcpJoint | None = None
 
 
 _MIN_NORMAL_COS = 0.1  # a normal at more than ~84 degrees to its viewing ray spans a depth edge
@@ -240,7 +264,7 @@ def _half(intrinsics: Intrinsics) -> Intrinsics:
     return Intrinsics(k.fx / 2, k.fy / 2, k.cx / 2, k.cy / 2, (k.width + 1) // 2, (k.height + 1) // 2)
 
 
-def _level(depth: Tensor, intrinsics: Intrinsics) -> IcpLevel:  # depth [H, W] m
+def _level(depth: Tensor, intrinsics: Intrinsics, min_normal_cos: float = _MIN_NORMAL_COS) -> IcpLevel:  # [H, W] m
     vertices = vertex_map(depth, intrinsics)
     valid = vertices[..., 2] > 0
     # central differences inside a one-pixel border; every neighbour must be valid
@@ -251,7 +275,7 @@ def _level(depth: Tensor, intrinsics: Intrinsics) -> IcpLevel:  # depth [H, W] m
     centre = vertices[1:-1, 1:-1]
     cos = (n * centre).sum(-1) / centre.norm(dim=-1).clamp_min(1e-12)
     inner = valid[1:-1, 1:-1] & valid[1:-1, 2:] & valid[1:-1, :-2] & valid[2:, 1:-1] & valid[:-2, 1:-1]
-    inner &= cos.abs() > _MIN_NORMAL_COS
+    inner &= cos.abs() > min_normal_cos
     n = torch.where(inner[..., None], n * -torch.sign(cos)[..., None], 0.0)  # towards the camera
     packed = torch.zeros((*intrinsics.shape, 7), dtype=torch.float32, device=depth.device)
     packed[..., :3] = vertices
@@ -300,6 +324,11 @@ def icp_pyramid(
     if kernel is None:
         return [_level(d, k) for d, k in _scales(depth, intrinsics, levels)]
     return [IcpLevel(k, kernel(d, k, _MIN_NORMAL_COS)) for d, k in _scales(depth, intrinsics, levels)]
+
+
+def torch_level(depth: Tensor, intrinsics: Intrinsics, min_normal_cos: float) -> Tensor:  # [H, W] m -> [H * W, 7]
+    """:class:`IcpLevelKernel` in PyTorch: one reference level's packed rows (what ``icp_pyramid`` builds)."""
+    return _level(depth, intrinsics, min_normal_cos).packed
 
 
 def _blur(image: Tensor) -> Tensor:  # [1, C, H, W] -> [1, C, H, W]
@@ -387,7 +416,7 @@ def _associate(
     weight: Tensor | None = None,  # [N] the source points' depth-noise weights
 ) -> _Association:
     rot, trans = src_to_ref[:3, :3].float(), src_to_ref[:3, 3].float()
-    p = src @ rot.T + trans
+    p = fusable_matmul(src, rot.T) + trans
     k = ref.intrinsics
     z = p[:, 2].clamp_min(1e-6)
     uc, vc = p[:, 0] / z * k.fx, p[:, 1] / z * k.fy
@@ -477,7 +506,7 @@ def _normal_matrix(
         jac, rc, usable = _channel_rows(a, values, ref, ref.intrinsics)
         rows = torch.cat([rows, torch.cat([jac, rc[..., None]], dim=-1).reshape(-1, 7)])  # [N (1 + C), 7]
         weight = torch.cat([weight, _huber_weight(rc, usable, s.huber_m).reshape(-1)])
-    return ((rows * weight[:, None]).T @ rows).double()
+    return fusable_matmul((rows * weight[:, None]).T, rows).double()
 
 
 def _solve(normal: Tensor, src_to_ref: Tensor, s: IcpSettings) -> Tensor:  # [7, 7] float64 -> the updated pose [4, 4]
@@ -486,7 +515,60 @@ def _solve(normal: Tensor, src_to_ref: Tensor, s: IcpSettings) -> Tensor:  # [7,
     eye = torch.eye(6, dtype=torch.float64, device=hessian.device)
     hessian = hessian + (s.damping * hessian.diagonal().mean() + 1e-12) * eye
     xi = -torch.linalg.solve_ex(hessian, gradient)[0]  # solve_ex: no error check, so no wait for the GPU
-    return se3_exp(xi) @ src_to_ref
+    return fusable_matmul(se3_exp(xi), src_to_ref)
+
+
+def torch_step(
+    src_to_ref: Tensor,  # [4, 4] float64
+    points: Tensor,  # [N, 3] float32 source points, z = 0 where invalid
+    values: Tensor | None,  # [N, C] float32 source channels
+    weights: Tensor | None,  # [N] float32 depth-noise weights of the source points
+    ref: IcpLevel,
+    s: IcpSettings,
+) -> Tensor:  # [4, 4] float64
+    """One damped Gauss-Newton update against ``ref``: :class:`IcpSteps` is this, ``steps`` times."""
+    return _gauss_newton_step(src_to_ref, _LevelSource(points, values, weights), ref, s)
+
+
+def torch_joint_step(
+    src_to_ref: Tensor,  # [4, 4] float64
+    points: Tensor,  # [N, 3] float32 source points, z = 0 where invalid
+    values: Tensor | None,  # [N, C] float32 source channels
+    weights: Tensor | None,  # [N] float32 depth-noise weights of the source points
+    ref: IcpLevel,
+    s: IcpSettings,
+    observations: Observations,
+) -> Tensor:  # [4, 4] float64
+    """:class:`IcpJoint` in PyTorch: one damped step of the dense terms and the observations together."""
+    source = _LevelSource(points, values, weights)
+    normal = _normal_matrix(src_to_ref, source, ref, s) + _observation_normal(src_to_ref, observations, ref.intrinsics)
+    return _solve(normal, src_to_ref, s)
+
+
+def torch_terms(
+    src_to_ref: Tensor,  # [4, 4] float64
+    points: Tensor,  # [N, 3] float32 source points, z = 0 where invalid
+    values: Tensor | None,  # [N, C] float32 source channels
+    packed: Tensor,  # [H * W, 7 (+ 3C + 1)] the reference level's rows
+    intrinsics: Intrinsics,  # the reference level's camera
+    max_distance_m: float,
+    huber_m: float,
+    weights: Tensor | None,  # [N] float32 depth-noise weights of the source points
+) -> Tensor:  # [53] float64: normal matrix [49], truncated cost, correspondences, their sum r^2, source points
+    """:class:`IcpTerms` in PyTorch (the cost's cap and the association as the steps have them)."""
+    num_channels = (packed.shape[1] - 8) // 3 if packed.shape[1] > 7 else 0
+    ref = IcpLevel(intrinsics, packed, num_channels)
+    s = IcpSettings(max_distance_m=max_distance_m, huber_m=huber_m)
+    source = _LevelSource(points, values, weights)
+    a = _associate(src_to_ref, points, ref, max_distance_m, weights)
+    valid = points[:, 2] > 0
+    cost = _truncated_cost(a.weighted, a.inliers, valid, s)
+    if values is not None:
+        cost = cost + _channel_cost(a, values, ref, s)
+    stats = torch.stack(
+        [cost, a.inliers.sum().double(), (a.residual.double().square() * a.inliers).sum(), valid.sum().double()]
+    )
+    return torch.cat([_normal_matrix(src_to_ref, source, ref, s).reshape(-1), stats])
 
 
 def _truncated_cost(r: Tensor, inliers: Tensor, valid: Tensor, s: IcpSettings) -> Tensor:  # [] float64
@@ -588,8 +670,11 @@ def _refine(
             for _ in range(steps):
                 pose = _gauss_newton_step(pose, source, ref, s)
     if observations is not None and iterations[-1] > 0:  # one joint step from the dense optimum
-        normal = _dense_normal(pose, source, reference[-1], s, kernels) + _observation_normal(pose, observations, k)
-        pose = _solve(normal, pose, s)
+        if kernels.joint is not None:
+            pose = kernels.joint(pose, *source, reference[-1], s, observations)
+        else:
+            normal = _dense_normal(pose, source, reference[-1], s, kernels) + _observation_normal(pose, observations, k)
+            pose = _solve(normal, pose, s)
     return pose, source
 
 

@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from sgs_slam_core.errors import ShapeError
+from sgs_slam_core.geometry.products import fusable_matmul
 
 __all__ = [
     "quat_multiply",
@@ -190,14 +191,23 @@ _GENERATORS = ((0, 0, 0, 0, 0, -1, 0, 1, 0), (0, 0, 1, 0, 0, 0, -1, 0, 0), (0, -
 _TAYLOR = ((1.0, 0.5, 1.0 / 6.0), (-1.0 / 6.0, -1.0 / 24.0, -1.0 / 120.0))
 
 
-@lru_cache(maxsize=32)
 def _constant(values: tuple, dtype: torch.dtype, device: torch.device) -> Tensor:
-    """A small constant tensor, made once per dtype and device (a fresh host-to-GPU copy would sync)."""
+    """A small constant tensor, made once per dtype and device (a fresh host-to-GPU copy would sync).
+
+    While ``torch.compile`` traces, a fresh one: the compiled graph holds it as a constant.
+    """
+    if torch.compiler.is_compiling():
+        return torch.tensor(values, dtype=dtype, device=device)
+    return _cached_constant(values, dtype, device)
+
+
+@lru_cache(maxsize=64)
+def _cached_constant(values: tuple, dtype: torch.dtype, device: torch.device) -> Tensor:
     return torch.tensor(values, dtype=dtype, device=device)
 
 
 def _skew(w: Tensor) -> Tensor:  # [..., 3] -> [..., 3, 3]
-    return (w @ _constant(_GENERATORS, w.dtype, w.device)).reshape(*w.shape[:-1], 3, 3)
+    return fusable_matmul(w[..., None, :], _constant(_GENERATORS, w.dtype, w.device)).reshape(*w.shape[:-1], 3, 3)
 
 
 def _rodrigues(omega: Tensor) -> tuple[Tensor, Tensor, Tensor]:  # [..., 3] -> 3 x [..., 1, 1]
@@ -242,8 +252,8 @@ def se3_exp(xi: Tensor) -> Tensor:  # [..., 6] (rho, phi) -> [..., 4, 4]
     rho, phi = xi[..., :3], xi[..., 3:]
     a, b, c = _rodrigues(phi)
     k = _skew(phi)
-    kk = k @ k
+    kk = fusable_matmul(k, k)
     eye = torch.eye(3, dtype=xi.dtype, device=xi.device)
     rot = eye + a * k + b * kk
     v = eye + b * k + c * kk  # left Jacobian of SO(3)
-    return se3_from_rt(rot, (v @ rho[..., None])[..., 0])
+    return se3_from_rt(rot, fusable_matmul(v, rho[..., None])[..., 0])

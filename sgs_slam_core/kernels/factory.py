@@ -3,7 +3,8 @@
 ``torch`` is the pure-PyTorch reference everywhere (rendering, losses, SSIM, Gauss-Newton steps);
 ``cpu`` the compiled kernels (CPU tensors); ``gsplat`` gsplat's rasteriser (CUDA tensors); ``auto``
 picks gsplat on CUDA when it imports, the compiled kernels on the CPU when they build (the first
-call may build them, about a minute each), else the reference with a warning.
+call may build them, about a minute each), else the reference with a warning. ``render.compile``
+gives ``torch`` and ``gsplat`` the ICP's parts through ``torch.compile``.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from sgs_slam_core import native
 from sgs_slam_core.errors import BackendUnavailableError
 from sgs_slam_core.kernels import gsplat
 from sgs_slam_core.kernels.base import Kernels
+from sgs_slam_core.kernels.compiled import compiled_icp_kernels
 from sgs_slam_core.kernels.cpu.extensions import EXTENSIONS
 from sgs_slam_core.kernels.cpu.kernels import CpuKernels
 from sgs_slam_core.kernels.gsplat import GsplatKernels
@@ -56,8 +58,12 @@ def _build(settings: RenderSettings, device: torch.device, announce: Callable[[s
     if name == "cpu":
         return CpuKernels(settings, device)
     if name == "gsplat":
-        return GsplatKernels(settings, device)
-    return ReferenceKernels(settings, device, ssim_blur="band" if device.type == "cpu" else "conv")
+        kernels: Kernels = GsplatKernels(settings, device)
+    else:
+        kernels = ReferenceKernels(settings, device, ssim_blur="band" if device.type == "cpu" else "conv")
+    if settings.compile:
+        kernels.icp = compiled_icp_kernels(announce)
+    return kernels
 
 
 def resolve_backend(requested: BackendName, device: torch.device, announce: Callable[[str], None] | None = None) -> str:

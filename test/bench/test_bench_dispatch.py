@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import torch
+import torch._inductor.config
 
-from bench.bench_dispatch import OpCounter
+from bench.bench_dispatch import INDUCTOR_KERNEL, OpCounter, compiled_kernels
 
 
 def test_counts_ops_and_host_reads():
@@ -33,3 +34,19 @@ def test_nothing_is_counted_while_paused_or_after():
     _ = (x * 3).numpy()  # the methods are restored: no count outside
     assert counter.total == (0, 0)
     assert torch.Tensor.tolist.__name__ == "tolist"
+
+
+def test_a_compiled_graph_runs_compiled_and_its_kernels_are_counted():
+    def affine_sum(x: torch.Tensor) -> torch.Tensor:
+        return (x * 2 + 1).sum()
+
+    x = torch.arange(6.0)
+    with torch._inductor.config.patch({"cpp.enable_kernel_profile": True}):
+        compiled = torch.compile(affine_sum, dynamic=False)
+        compiled(x)  # compiles outside the count
+        counter = OpCounter()
+        with counter.active(), compiled_kernels() as kernels:
+            assert float(compiled(x)) == 36.0
+    assert counter.ops["mul"] == 0 and counter.ops["add"] == 0  # the fused kernel, not the eager ops
+    assert kernels.total() == 1 and all(INDUCTOR_KERNEL in name for name in kernels)
+    assert counter.host_reads["_local_scalar_dense"] == 1
