@@ -3,8 +3,8 @@
 Inductor fuses a Gauss-Newton step's hundred-odd tensor operations into a few kernels (Triton on
 CUDA, C++ on the CPU), so a step costs a few launches instead of one per operation. The compiled
 code is ``geometry.icp``'s own (:func:`~sgs_slam_core.geometry.icp.torch_step`, ``torch_joint_step``,
-``torch_terms``, ``torch_level``), so its reference is that code run eagerly; tests compare the two. For the backends
-without an ICP of their own (``torch`` and ``gsplat``), with ``render.compile``.
+``torch_terms``, ``torch_level``), so its reference is that code run eagerly; tests compare the two.
+Used with ``render.compile`` on any backend (on ``cpu`` in place of its C++ ICP, which is faster there).
 
 Each new shape compiles once (seconds per level on a GPU host, ten to twenty on two CPU cores), and
 Inductor caches the result on disk for later processes. Where compiling fails (no C++ compiler, no

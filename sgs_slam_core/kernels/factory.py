@@ -4,7 +4,7 @@
 ``cpu`` the compiled kernels (CPU tensors); ``gsplat`` gsplat's rasteriser (CUDA tensors); ``auto``
 picks gsplat on CUDA when it imports, the compiled kernels on the CPU when they build (the first
 call may build them, about a minute each), else the reference with a warning. ``render.compile``
-gives ``torch`` and ``gsplat`` the ICP's parts through ``torch.compile``.
+runs the ICP's parts through ``torch.compile`` instead, on any backend.
 """
 
 from __future__ import annotations
@@ -56,9 +56,9 @@ def build_kernels(
 def _build(settings: RenderSettings, device: torch.device, announce: Callable[[str], None]) -> Kernels:
     name = resolve_backend(settings.backend, device, announce)
     if name == "cpu":
-        return CpuKernels(settings, device)
-    if name == "gsplat":
-        kernels: Kernels = GsplatKernels(settings, device)
+        kernels: Kernels = CpuKernels(settings, device)
+    elif name == "gsplat":
+        kernels = GsplatKernels(settings, device)
     else:
         kernels = ReferenceKernels(settings, device, ssim_blur="band" if device.type == "cpu" else "conv")
     if settings.compile:

@@ -29,10 +29,10 @@ class RenderSettings:
             ``auto`` picks gsplat on CUDA when it is installed, ``cpu`` on the CPU when it builds,
             else ``torch``.
         compile: run the Gauss-Newton steps, ICP terms and reference levels through
-            ``torch.compile`` on the ``torch`` and ``gsplat`` backends (``kernels/compiled.py``): a
-            step becomes a few fused kernels instead of a hundred-odd launches. Each new image size
-            compiles first (seconds per pyramid level on a GPU host, ten to twenty on two CPU
-            cores); the ``cpu`` backend has compiled ICP kernels of its own and ignores this.
+            ``torch.compile`` (``kernels/compiled.py``): on the ``torch`` and ``gsplat`` backends a
+            step becomes a few fused kernels instead of a hundred-odd launches; on ``cpu`` it
+            replaces the backend's own C++ ICP, which is faster there. Each new image size
+            compiles first (seconds per pyramid level on a GPU host, ten to twenty on two CPU cores).
         tile_size: tile side in pixels for the torch backend (8 is fastest on CPU).
         cpu_tile_size: tile side of the compiled cpu backend (4, 8, 16 or 32; capped at the build's
             largest, 32 with AVX-512 float32, else 16); 0 picks 32 (the fastest from 80x60 to

@@ -14,6 +14,7 @@ from sgs_slam_core.geometry import icp, se3_exp
 from sgs_slam_core.geometry.depth_noise import DepthNoise
 from sgs_slam_core.kernels import build_kernels
 from sgs_slam_core.kernels.compiled import CompiledFunction, compiled_icp_kernels
+from sgs_slam_core.kernels.cpu.extensions import GAUSS_NEWTON
 from sgs_slam_core.render import RenderSettings
 
 from .test_gauss_newton import _one_level_alignment, gn_tracker, target_frame
@@ -70,6 +71,14 @@ def test_the_tracker_on_compiled_kernels_finds_the_pose_the_eager_one_finds():
     slow, fast = (tracker.track(gm, frame, start, True) for tracker in (eager, compiled))
     assert np.linalg.norm(slow.w2c[:3, 3]) < 0.3 * np.linalg.norm(start[:3, 3])
     assert np.abs(fast.w2c - slow.w2c).max() < 1e-5
+
+
+def test_render_compile_replaces_the_backends_own_icp():
+    assert build_kernels(RenderSettings(backend="torch"), "cpu").icp == icp.IcpKernels()
+    assert build_kernels(RenderSettings(backend="torch", compile=True), "cpu").icp.joint is not None
+    if GAUSS_NEWTON.is_available():  # the C++ ICP has no joint step of its own
+        assert build_kernels(RenderSettings(backend="cpu"), "cpu").icp.joint is None
+        assert build_kernels(RenderSettings(backend="cpu", compile=True), "cpu").icp.joint is not None
 
 
 def test_a_failed_compile_warns_once_and_runs_the_function_eagerly(caplog):
