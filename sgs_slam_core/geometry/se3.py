@@ -201,7 +201,7 @@ def _constant(values: tuple, dtype: torch.dtype, device: torch.device) -> Tensor
     return _cached_constant(values, dtype, device)
 
 
-@lru_cache(maxsize=64)
+@lru_cache(maxsize=32)
 def _cached_constant(values: tuple, dtype: torch.dtype, device: torch.device) -> Tensor:
     return torch.tensor(values, dtype=dtype, device=device)
 

@@ -36,8 +36,8 @@ class Kernels(ABC):
     Attributes:
         name: ``torch`` (the pure-PyTorch reference), ``cpu`` (compiled) or ``gsplat`` (CUDA).
         settings: the splatting constants every render uses.
-        icp: compiled forms of ``geometry.icp``'s step terms, a level's steps and a reference
-            level (None where its PyTorch code runs).
+        icp: compiled forms of ``geometry.icp``'s step terms, a level's steps, the joint step with
+            observations and a reference level (None where its PyTorch code runs).
     """
 
     name: str

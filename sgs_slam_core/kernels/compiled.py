@@ -62,7 +62,8 @@ class CompiledFunction:
                 return self.compiled(*args)
         except torch._dynamo.exc.BackendCompilerFailed as error:
             inner = error.inner_exception
-            self.failed = f"{type(inner).__name__}: {str(inner).strip().splitlines()[0] if str(inner).strip() else ''}"
+            first_line = (str(inner).strip().splitlines() or [""])[0]
+            self.failed = f"{type(inner).__name__}: {first_line}"
             self.announce(f"torch.compile of {self.function.__name__} failed ({self.failed}); running it eagerly")
             return self.function(*args)
 
