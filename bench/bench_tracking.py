@@ -36,6 +36,7 @@ from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.kernels import build_kernels
 from sgs_slam_core.runner import run_offline
+from sgs_slam_core.slam.features import Landmarks
 from sgs_slam_core.slam.system import Slam, resolve_device
 from sgs_slam_core.slam.tracker import TrackResult
 from sgs_slam_core.slam.trackers import Tracker, build_tracker
@@ -66,14 +67,17 @@ class SideBySide:
         init_w2c: np.ndarray,
         use_semantics: bool,
         newer_frame_waiting: Callable[[], bool] | None = None,
+        landmarks: Landmarks | None = None,
     ) -> TrackResult:
+        """Every tracker from ``init_w2c`` with the frame's feature landmarks; the driver's result."""
         names = list(self.trackers)
         order = names if self.calls % 2 == 0 else names[::-1]
         self.calls += 1
         results = {}
         for name in order:
             t0 = time.perf_counter()
-            results[name] = result = self.trackers[name].track(gaussians, frame, init_w2c, use_semantics)
+            tracker = self.trackers[name]
+            results[name] = result = tracker.track(gaussians, frame, init_w2c, use_semantics, None, landmarks)
             log = self.logs[name]
             log.ms.append((time.perf_counter() - t0) * 1e3)
             log.iterations.append(result.iterations)
@@ -104,7 +108,7 @@ def same_map_pass(
     """Pass 1: the logs and, per tracked frame, its :class:`Truth` (None without ground truth)."""
     slam = Slam(config, dataset.label_table)
     side = SideBySide(trackers, driver)
-    slam.tracker = side
+    slam.tracker = slam.localizer.tracker = side  # the localizer runs the tracker it was built with
     truth: list[Truth | None] = []
     previous = None
     for i in range(len(dataset)):
