@@ -44,7 +44,7 @@ def test_the_compiled_steps_terms_and_joint_step_match_the_pytorch_code():
     k = ref.intrinsics
     seen = points[points[:, 2] > 0][::97].double()  # [M, 3] as landmarks: in the rendered camera at the pose
     pixels = torch.stack([seen[:, 0] / seen[:, 2] * k.fx + k.cx, seen[:, 1] / seen[:, 2] * k.fy + k.cy], dim=-1)
-    for count in (len(seen), len(seen) - 7):  # a new count reuses the graph (one for every count)
+    for count in (len(seen), len(seen) - 7):  # the observations' count changes from frame to frame
         obs = icp.Observations(seen[:count] @ pose[:3, :3].T + pose[:3, 3], pixels[:count], 4.0, 2.0)
         slow = icp.torch_joint_step(pose, points, values, weights, ref, s, obs)
         fast = COMPILED.joint(pose, points, values, weights, ref, s, obs)
