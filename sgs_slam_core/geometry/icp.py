@@ -492,9 +492,10 @@ def _normal_matrix(
     source: _LevelSource,
     ref: IcpLevel,
     s: IcpSettings,
+    association: _Association | None = None,  # the source's at ``src_to_ref``, where the caller has it already
 ) -> Tensor:  # [7, 7] float64: [J^T W J | J^T W r] of the Huber-weighted rows
     values = source.values
-    a = _associate(src_to_ref, source.points, ref, s.max_distance_m, source.weights)
+    a = association or _associate(src_to_ref, source.points, ref, s.max_distance_m, source.weights)
     p, n, r = a.points, a.target[:, 3:6], a.weighted
     weight = _huber_weight(r, a.inliers, s.huber_m)
     # rows [d r / d (rho, phi) | r] for a left perturbation; one product gives J^T W J and J^T W r
@@ -568,7 +569,7 @@ def torch_terms(
     stats = torch.stack(
         [cost, a.inliers.sum().double(), (a.residual.double().square() * a.inliers).sum(), valid.sum().double()]
     )
-    return torch.cat([_normal_matrix(src_to_ref, source, ref, s).reshape(-1), stats])
+    return torch.cat([_normal_matrix(src_to_ref, source, ref, s, a).reshape(-1), stats])
 
 
 def _truncated_cost(r: Tensor, inliers: Tensor, valid: Tensor, s: IcpSettings) -> Tensor:  # [] float64
