@@ -3,13 +3,15 @@
 One :class:`Kernels` object per (render settings, device), built by :func:`sgs_slam_core.kernels.build_kernels`,
 runs every heavy per-frame operation. Three implementations: the pure-PyTorch reference
 (``reference.py``), the compiled CPU kernels (``cpu/``) and gsplat on CUDA (``gsplat.py``). The
-optimiser step (:mod:`sgs_slam_core.slam.adam`) is the same fused PyTorch kernel on every device.
+optimiser step (:mod:`sgs_slam_core.slam.adam`) is the same fused PyTorch kernel on every device, or
+with ``render.compile`` :mod:`sgs_slam_core.kernels.adam`'s update compiled (``Kernels.mapping``).
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import torch
@@ -24,10 +26,31 @@ if TYPE_CHECKING:
     from sgs_slam_core.config.sections import MappingSettings, TrackingSettings
     from sgs_slam_core.frame_data import FrameTensors
     from sgs_slam_core.gaussians import GaussianMap
-    from sgs_slam_core.kernels.losses import TrackingLoss
+    from sgs_slam_core.kernels.losses import MappingTarget, MappingWeights, TrackingLoss
+    from sgs_slam_core.kernels.photometric import SsimBlur
     from sgs_slam_core.render.output import RenderOutput
 
-__all__ = ["IcpKernels", "Kernels"]
+__all__ = ["AdamUpdate", "IcpKernels", "Kernels", "MappingKernels"]
+
+# kernels.losses.mapping_loss_of's signature: rendered colour, depth, semantics, target, weights, SSIM window
+MappingLossOf = Callable[["Tensor", "Tensor", "Tensor", "MappingTarget", "MappingWeights", "SsimBlur"], "Tensor"]
+
+# kernels.adam.adam_update's: params, grads, first and second moments, step counts, learning rates, eps
+_Tensors = Sequence["Tensor"]
+AdamUpdate = Callable[[_Tensors, _Tensors, _Tensors, _Tensors, _Tensors, Sequence[float], float], None]
+
+
+@dataclass(frozen=True)
+class MappingKernels:
+    """Compiled forms of a mapping step's PyTorch parts; None where that code runs as written.
+
+    Attributes:
+        loss: :func:`~sgs_slam_core.kernels.losses.mapping_loss_of`, its backward compiled with it.
+        update: :func:`~sgs_slam_core.kernels.adam.adam_update`, every field's Adam step at once.
+    """
+
+    loss: MappingLossOf | None = None
+    update: AdamUpdate | None = None
 
 
 class Kernels(ABC):
@@ -38,10 +61,13 @@ class Kernels(ABC):
         settings: the splatting constants every render uses.
         icp: compiled forms of ``geometry.icp``'s step terms, a level's steps, the joint step with
             observations and a reference level (None where its PyTorch code runs).
+        mapping: compiled forms of the mapping step's parts (the loss where the backend's is PyTorch's,
+            the update on any backend).
     """
 
     name: str
     icp: IcpKernels = IcpKernels()
+    mapping: MappingKernels = MappingKernels()
 
     def __init__(self, settings: RenderSettings, device: torch.device) -> None:
         self.settings, self.device = settings, device

@@ -1,10 +1,13 @@
-"""``geometry.icp``'s PyTorch steps, terms and reference level through ``torch.compile``.
+"""The ICP's steps, terms and reference level, the mapping loss and Adam's update through ``torch.compile``.
 
 Inductor fuses a Gauss-Newton step's hundred-odd tensor operations into a few kernels (Triton on
 CUDA, C++ on the CPU), so a step costs a few launches instead of one per operation. The compiled
-code is ``geometry.icp``'s own (:func:`~sgs_slam_core.geometry.icp.torch_step`, ``torch_joint_step``,
-``torch_terms``, ``torch_level``), so its reference is that code run eagerly; tests compare the two.
-Used with ``render.compile`` on any backend (on ``cpu`` in place of its C++ ICP, which is faster there).
+code is the PyTorch code itself (:func:`~sgs_slam_core.geometry.icp.torch_step`, ``torch_joint_step``,
+``torch_terms``, ``torch_level``; :func:`~sgs_slam_core.kernels.losses.mapping_loss_of`, its backward
+compiled with it; :func:`~sgs_slam_core.kernels.adam.adam_update`), so its reference is that code run
+eagerly; tests compare the two. Used with ``render.compile``: the ICP and the update on any backend
+(on ``cpu`` in place of its C++ ICP, which is faster there), the mapping loss on the PyTorch ones
+(``torch``, ``gsplat``; ``cpu`` keeps its C++ loss).
 
 Each new shape compiles once (seconds per level on a GPU host, ten to twenty on two CPU cores), and
 Inductor caches the result on disk for later processes. Where compiling fails (no C++ compiler, no
@@ -14,6 +17,7 @@ Triton) a warning says why and ``geometry.icp``'s PyTorch code runs from then on
 from __future__ import annotations
 
 import logging
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -31,8 +35,11 @@ from sgs_slam_core.geometry.icp import (
     torch_step,
     torch_terms,
 )
+from sgs_slam_core.kernels.adam import adam_update
+from sgs_slam_core.kernels.base import MappingKernels
+from sgs_slam_core.kernels.losses import mapping_loss_of
 
-__all__ = ["CompiledFunction", "compiled_icp_kernels"]
+__all__ = ["CompiledFunction", "compiled_icp_kernels", "compiled_mapping_kernels"]
 
 log = logging.getLogger(__name__)
 
@@ -45,15 +52,17 @@ class CompiledFunction:
     """``function`` compiled on first use, or run eagerly from the first compile failure on."""
 
     def __init__(
-        self, function: Callable[..., Tensor], announce: Callable[[str], None] | None = None, dynamic: bool = False
+        self, function: Callable[..., Any], announce: Callable[[str], None] | None = None, dynamic: bool = False
     ) -> None:
         """``dynamic``: one graph for every size of the inputs (else one per size, each faster)."""
         self.function = function
         self.announce = announce or log.warning
+        # Inductor's own use of a deprecated helper, once per lowered op: noise in a user's log
+        warnings.filterwarnings("ignore", r"`torch\._prims_common\.check` is deprecated", FutureWarning)
         self.compiled = torch.compile(function, dynamic=dynamic)
         self.failed: str | None = None
 
-    def __call__(self, *args: Any) -> Tensor:
+    def __call__(self, *args: Any) -> Any:
         """``function(*args)``, compiled (a new graph for each new shape or constant)."""
         if self.failed is not None:
             return self.function(*args)
@@ -95,3 +104,10 @@ def compiled_icp_kernels(announce: Callable[[str], None] | None = None) -> IcpKe
     # the observations' count changes with every frame: one graph for all counts
     joint = CompiledFunction(torch_joint_step, announce, dynamic=True)
     return IcpKernels(terms=CompiledFunction(torch_terms, announce), steps=steps, level=level_rows, joint=joint)
+
+
+def compiled_mapping_kernels(announce: Callable[[str], None] | None = None) -> MappingKernels:
+    """The mapping loss (forward and backward) and Adam's update compiled by ``torch.compile`` (any device)."""
+    # the map's size changes with every window: one graph for every size
+    update = CompiledFunction(adam_update, announce, dynamic=True)
+    return MappingKernels(loss=CompiledFunction(mapping_loss_of, announce), update=update)

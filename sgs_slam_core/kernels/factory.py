@@ -4,7 +4,8 @@
 ``cpu`` the compiled kernels (CPU tensors); ``gsplat`` gsplat's rasteriser (CUDA tensors); ``auto``
 picks gsplat on CUDA when it imports, the compiled kernels on the CPU when they build (the first
 call may build them, about a minute each), else the reference with a warning. ``render.compile``
-runs the ICP's parts through ``torch.compile`` instead, on any backend.
+runs the ICP's parts and Adam's update (any backend) and the mapping loss (the PyTorch backends) through
+``torch.compile``.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from sgs_slam_core import native
 from sgs_slam_core.errors import BackendUnavailableError
 from sgs_slam_core.kernels import gsplat
 from sgs_slam_core.kernels.base import Kernels
-from sgs_slam_core.kernels.compiled import compiled_icp_kernels
+from sgs_slam_core.kernels.compiled import compiled_icp_kernels, compiled_mapping_kernels
 from sgs_slam_core.kernels.cpu.extensions import EXTENSIONS
 from sgs_slam_core.kernels.cpu.kernels import CpuKernels
 from sgs_slam_core.kernels.gsplat import GsplatKernels
@@ -63,6 +64,7 @@ def _build(settings: RenderSettings, device: torch.device, announce: Callable[[s
         kernels = ReferenceKernels(settings, device, ssim_blur="band" if device.type == "cpu" else "conv")
     if settings.compile:
         kernels.icp = compiled_icp_kernels(announce)
+        kernels.mapping = compiled_mapping_kernels(announce)
     return kernels
 
 

@@ -7,6 +7,7 @@ kernels in one C++ call each; the SLAM calls ``kernels.tracking_loss`` and ``ker
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -17,8 +18,12 @@ from sgs_slam_core.kernels.photometric import SsimBlur, photometric_loss
 from sgs_slam_core.render.output import RenderOutput
 
 __all__ = [
+    "MappingTarget",
     "MappingTargets",
+    "MappingWeights",
     "TrackingLoss",
+    "mapping_inputs",
+    "mapping_loss_of",
     "mapping_loss_reference",
     "mapping_targets",
     "semantic_term",
@@ -86,6 +91,51 @@ def mapping_targets(out: RenderOutput, frame: FrameTensors, s: MappingSettings, 
     return MappingTargets(semantic, rgb, sem_target)
 
 
+class MappingTarget(NamedTuple):
+    """What the mapping loss compares a render with: one frame's tensors."""
+
+    rgb: Tensor  # [H, W, 3]
+    depth: Tensor  # [H, W] m, 0 = invalid
+    valid: Tensor  # [H, W] bool: measured depth, not ignored
+    semantic: Tensor | None  # [H, W, S], None without the semantic term
+    ignore: Tensor | None  # [H, W] bool: pixels that count as matched (no error, no gradient)
+
+
+class MappingWeights(NamedTuple):
+    """The mapping loss's term weights and its SSIM share."""
+
+    depth: float
+    color: float
+    semantic: float
+    ssim: float
+
+
+def mapping_inputs(
+    frame: FrameTensors, s: MappingSettings, use_semantics: bool
+) -> tuple[MappingTarget, MappingWeights]:
+    """The frame's targets (semantics only where the loss has the term) and the settings' weights."""
+    semantic = frame.semantic if semantic_term(use_semantics, frame, s.weight_semantic) else None
+    target = MappingTarget(frame.rgb, frame.depth, frame.valid, semantic, frame.ignore)
+    return target, MappingWeights(s.weight_depth, s.weight_color, s.weight_semantic, s.ssim_weight)
+
+
+def mapping_loss_of(
+    color: Tensor,  # [H, W, 3] rendered
+    depth: Tensor,  # [H, W] rendered
+    semantic: Tensor,  # [H, W, S] rendered (unused without a target)
+    target: MappingTarget,
+    w: MappingWeights,
+    blur: SsimBlur = "band",
+) -> Tensor:  # []
+    """:func:`mapping_loss_reference` on tensors alone (the form ``torch.compile`` traces)."""
+    valid = target.valid & torch.isfinite(depth)
+    depth_err = torch.where(valid, depth - target.depth, 0.0).abs().sum() / valid.sum().clamp(min=1)
+    loss = w.depth * depth_err + w.color * photometric_loss(color, target.rgb, target.ignore, w.ssim, blur)
+    if target.semantic is not None:
+        loss = loss + w.semantic * photometric_loss(semantic, target.semantic, target.ignore, w.ssim, blur)
+    return loss
+
+
 def mapping_loss_reference(
     out: RenderOutput, frame: FrameTensors, s: MappingSettings, use_semantics: bool, blur: SsimBlur = "band"
 ) -> Tensor:
@@ -94,11 +144,5 @@ def mapping_loss_reference(
     Colour and semantics count every pixel except ignored ones (edit locks); ``blur`` is the SSIM
     window's form (the same function either way, up to rounding).
     """
-    valid = frame.valid & torch.isfinite(out.depth)
-    depth_err = torch.where(valid, out.depth - frame.depth, 0.0).abs().sum() / valid.sum().clamp(min=1)
-    loss = s.weight_depth * depth_err
-    loss = loss + s.weight_color * photometric_loss(out.color, frame.rgb, frame.ignore, s.ssim_weight, blur)
-    if semantic_term(use_semantics, frame, s.weight_semantic):
-        photometric = photometric_loss(out.semantic, frame.semantic, frame.ignore, s.ssim_weight, blur)
-        loss = loss + s.weight_semantic * photometric
-    return loss
+    target, weights = mapping_inputs(frame, s, use_semantics)
+    return mapping_loss_of(out.color, out.depth, out.semantic, target, weights, blur)

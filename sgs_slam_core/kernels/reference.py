@@ -15,7 +15,7 @@ from torch import Tensor
 
 from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.kernels.base import Kernels
-from sgs_slam_core.kernels.losses import TrackingLoss, mapping_loss_reference, tracking_loss_reference
+from sgs_slam_core.kernels.losses import TrackingLoss, mapping_inputs, mapping_loss_of, tracking_loss_reference
 from sgs_slam_core.kernels.photometric import SsimBlur, photometric_loss
 from sgs_slam_core.render.composite import composite
 from sgs_slam_core.render.output import CameraGaussians, RenderOutput, camera_covariances, to_camera
@@ -80,8 +80,10 @@ class ReferenceKernels(Kernels):
     def mapping_loss(
         self, out: RenderOutput, frame: FrameTensors, s: MappingSettings, use_semantics: bool, scale: float = 1.0
     ) -> Tensor:  # []
-        """``scale`` x :func:`sgs_slam_core.kernels.losses.mapping_loss_reference`."""
-        return scale * mapping_loss_reference(out, frame, s, use_semantics, self.ssim_blur)
+        """``scale`` x :func:`sgs_slam_core.kernels.losses.mapping_loss_reference` (compiled in ``mapping.loss``)."""
+        target, weights = mapping_inputs(frame, s, use_semantics)
+        loss_of = self.mapping.loss or mapping_loss_of
+        return scale * loss_of(out.color, out.depth, out.semantic, target, weights, self.ssim_blur)
 
     def photometric_loss(self, pred: Tensor, target: Tensor, ignore: Tensor | None, ssim_weight: float) -> Tensor:
         """:func:`sgs_slam_core.kernels.photometric.photometric_loss` with this device's SSIM window."""

@@ -53,14 +53,26 @@ def gaussian_window(size: int, sigma: float, like: Tensor) -> Tensor:  # [size] 
     return g / g.sum()
 
 
-@functools.lru_cache(maxsize=32)
 def _band(n: int, size: int, sigma: float, pad: int, dtype: torch.dtype, device: torch.device) -> Tensor:
-    """[n_out, n] matrix applying the 1D window along an axis; zero padding by ``pad`` (0 = valid)."""
+    """[n_out, n] matrix applying the 1D window along an axis; zero padding by ``pad`` (0 = valid).
+
+    Made once per shape, dtype and device; while ``torch.compile`` traces, a fresh one (the compiled
+    graph holds it as a constant).
+    """
+    if torch.compiler.is_compiling():
+        return _band_matrix(n, size, sigma, pad, dtype, device)
+    return _cached_band(n, size, sigma, pad, dtype, device)
+
+
+def _band_matrix(n: int, size: int, sigma: float, pad: int, dtype: torch.dtype, device: torch.device) -> Tensor:
     taps = gaussian_window(size, sigma, torch.empty(0, dtype=dtype, device=device))
     n_out = n + 2 * pad - size + 1
     offset = torch.arange(n, device=device)[None, :] - torch.arange(n_out, device=device)[:, None] + pad
     inside = (offset >= 0) & (offset < size)
     return torch.where(inside, taps[offset.clamp(0, size - 1)], torch.zeros((), dtype=dtype, device=device))
+
+
+_cached_band = functools.lru_cache(maxsize=32)(_band_matrix)
 
 
 def blur_band(x: Tensor, size: int, sigma: float, pad: int) -> Tensor:  # [1, C, H, W] -> [1, C, H', W']

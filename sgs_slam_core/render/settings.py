@@ -28,10 +28,11 @@ class RenderSettings:
             ``cpu`` the compiled kernels (CPU tensors), ``gsplat`` gsplat's rasteriser (CUDA);
             ``auto`` picks gsplat on CUDA when it is installed, ``cpu`` on the CPU when it builds,
             else ``torch``.
-        compile: run the Gauss-Newton steps, ICP terms and reference levels through
-            ``torch.compile`` (``kernels/compiled.py``): on the ``torch`` and ``gsplat`` backends a
-            step becomes a few fused kernels instead of a hundred-odd launches; on ``cpu`` it
-            replaces the backend's own C++ ICP, which is faster there. Each new image size
+        compile: run the Gauss-Newton steps, ICP terms and reference levels, the mapping loss
+            (forward and backward) and Adam's update through ``torch.compile``
+            (``kernels/compiled.py``): on the ``torch`` and ``gsplat`` backends a step becomes a few
+            fused kernels instead of a hundred-odd launches; on ``cpu`` it replaces the backend's own
+            C++ ICP, which is faster there (its C++ mapping loss stays). Each new image size
             compiles first (seconds per pyramid level on a GPU host, ten to twenty on two CPU cores).
         tile_size: tile side in pixels for the torch backend (8 is fastest on CPU).
         cpu_tile_size: tile side of the compiled cpu backend (4, 8, 16 or 32; capped at the build's

@@ -3,7 +3,8 @@
 ``torch.optim.Adam(fused=True)`` runs the same kernel (``torch._fused_adam_``) but spends more time
 around it than in it on the SLAM's small steps. The update is the library's fused kernel, with the
 same step counting (incremented before the update, as ``torch.optim.Adam`` does); the CPU and CUDA
-both have it, so this is the one optimiser step of every kernel backend.
+both have it, so this is the one optimiser step of every kernel backend, unless an ``update`` is
+given (``render.compile``: :func:`~sgs_slam_core.kernels.adam.adam_update` compiled, every tensor at once).
 """
 
 from __future__ import annotations
@@ -13,9 +14,10 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-__all__ = ["AdamMoments", "FusedAdam"]
+from sgs_slam_core.kernels.adam import BETAS
+from sgs_slam_core.kernels.base import AdamUpdate
 
-BETAS = (0.9, 0.999)
+__all__ = ["AdamMoments", "FusedAdam"]
 
 
 @dataclass
@@ -31,40 +33,64 @@ class FusedAdam:
     """Adam (betas 0.9, 0.999, no weight decay) over ``params[name]`` with ``lrs[name]``.
 
     ``params`` is held by reference: :meth:`replace` swaps a tensor (e.g. after pruning) together with
-    its sliced moments.
+    its sliced moments. ``update`` (:func:`~sgs_slam_core.kernels.adam.adam_update`'s signature) runs
+    the step of every tensor in one call instead of the fused kernel per tensor.
     """
 
-    def __init__(self, params: dict[str, Tensor], lrs: dict[str, float], eps: float = 1e-8) -> None:
-        self.params, self.lrs, self.eps = params, lrs, eps
+    def __init__(
+        self, params: dict[str, Tensor], lrs: dict[str, float], eps: float = 1e-8, update: AdamUpdate | None = None
+    ) -> None:
+        self.params, self.lrs, self.eps, self.update = params, lrs, eps, update
         self.state: dict[str, AdamMoments] = {}
 
     def step(self) -> None:
         """One update of every tensor that has a gradient, then the gradients are cleared."""
         with torch.no_grad():
-            for name, p in self.params.items():
-                if p.grad is None:
-                    continue
-                s = self.state.get(name)
-                if s is None:
-                    s = AdamMoments(torch.zeros_like(p), torch.zeros_like(p), torch.zeros((), device=p.device))
-                    self.state[name] = s
-                s.step += 1
-                torch._fused_adam_(  # the kernel behind torch.optim.Adam(fused=True)
-                    [p],
-                    [p.grad],
-                    [s.exp_avg],
-                    [s.exp_avg_sq],
-                    [],  # max_exp_avg_sqs (no amsgrad)
-                    [s.step],
-                    lr=self.lrs[name],
-                    beta1=BETAS[0],
-                    beta2=BETAS[1],
-                    weight_decay=0.0,
-                    eps=self.eps,
-                    amsgrad=False,
-                    maximize=False,
-                )
-                p.grad = None
+            names = [name for name, p in self.params.items() if p.grad is not None]
+            for name in names:
+                if name not in self.state:
+                    p = self.params[name]
+                    self.state[name] = AdamMoments(
+                        torch.zeros_like(p), torch.zeros_like(p), torch.zeros((), device=p.device)
+                    )
+            if self.update is not None:
+                self._update(self.update, names)
+            else:
+                for name in names:
+                    self._fused(name)
+            for name in names:
+                self.params[name].grad = None
+
+    def _update(self, update: AdamUpdate, names: list[str]) -> None:
+        params, states = [self.params[n] for n in names], [self.state[n] for n in names]
+        update(
+            params,
+            [p.grad for p in params if p.grad is not None],
+            [s.exp_avg for s in states],
+            [s.exp_avg_sq for s in states],
+            [s.step for s in states],
+            [self.lrs[n] for n in names],
+            self.eps,
+        )
+
+    def _fused(self, name: str) -> None:
+        p, s = self.params[name], self.state[name]
+        s.step += 1
+        torch._fused_adam_(  # the kernel behind torch.optim.Adam(fused=True)
+            [p],
+            [p.grad],
+            [s.exp_avg],
+            [s.exp_avg_sq],
+            [],  # max_exp_avg_sqs (no amsgrad)
+            [s.step],
+            lr=self.lrs[name],
+            beta1=BETAS[0],
+            beta2=BETAS[1],
+            weight_decay=0.0,
+            eps=self.eps,
+            amsgrad=False,
+            maximize=False,
+        )
 
     def replace(self, name: str, new: Tensor, rows: Tensor | None = None) -> None:
         """Swap ``params[name]`` for ``new``; its moments keep ``rows`` (a [N] bool or [M] int64 index) when given."""

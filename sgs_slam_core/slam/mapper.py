@@ -99,7 +99,7 @@ def map_window(
     step (compiled CPU, isotropic map) each step's gradients come from it, else from autograd.
     """
     t0 = time.perf_counter()
-    opt = GaussianOptimizer(gaussians, s, frozen_labels)
+    opt = GaussianOptimizer(gaussians, s, frozen_labels, kernels.mapping.update)
     direct = kernels.direct_mapping(gaussians.isotropic)
     window_semantic = use_semantics and any(wf.has_semantic for wf in window)
     pruned, last, done = 0, float("nan"), 0

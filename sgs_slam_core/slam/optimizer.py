@@ -8,6 +8,7 @@ from torch import Tensor
 from sgs_slam_core.config.sections import MappingSettings
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry.camera import Intrinsics
+from sgs_slam_core.kernels.base import AdamUpdate
 from sgs_slam_core.slam.adam import FusedAdam
 
 __all__ = ["GaussianOptimizer"]
@@ -23,8 +24,13 @@ class GaussianOptimizer:
     """
 
     def __init__(
-        self, gaussians: GaussianMap, settings: MappingSettings, frozen_labels: frozenset[int] = frozenset()
+        self,
+        gaussians: GaussianMap,
+        settings: MappingSettings,
+        frozen_labels: frozenset[int] = frozenset(),
+        update: AdamUpdate | None = None,
     ) -> None:
+        """``update``: Adam's step of every field at once (``kernels.mapping.update``), else the fused one per field."""
         self._labels, self._birth, self._weight = gaussians.labels, gaussians.birth_frame, gaussians.label_weight
         self._frozen_ids = torch.tensor(sorted(frozen_labels), dtype=torch.int64, device=gaussians.device)
         lrs = {
@@ -38,7 +44,7 @@ class GaussianOptimizer:
         self.names = GaussianMap.optimised_fields(not gaussians.isotropic)
         self.params = {n: getattr(gaussians, n).detach().clone().requires_grad_(True) for n in self.names}
         # fused: one kernel call per field, less overhead than torch.optim's step
-        self.adam = FusedAdam(self.params, {n: lrs[n] for n in self.names}, eps=1e-15)
+        self.adam = FusedAdam(self.params, {n: lrs[n] for n in self.names}, eps=1e-15, update=update)
 
     def gaussians(self) -> GaussianMap:
         """The map built on the live parameters (differentiable)."""
