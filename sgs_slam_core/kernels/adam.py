@@ -1,9 +1,9 @@
 """Adam's update written out in tensor operations: the form ``torch.compile`` fuses.
 
 :class:`~sgs_slam_core.slam.adam.FusedAdam` runs PyTorch's fused Adam kernel once per tensor (two
-launches each, with its step count). Compiled (``render.compile``), this function updates every
-tensor of a mapping step in a few generated kernels; run eagerly it is the reference the compiled
-form is tested against, and it matches the fused kernel to rounding (tests).
+launches each, with its step count). Compiled (``render.compile``), this function updates a tensor in
+one generated kernel; run eagerly it is the reference the compiled form is tested against, and it
+matches the fused kernel to rounding (tests).
 """
 
 from __future__ import annotations

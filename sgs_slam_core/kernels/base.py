@@ -46,7 +46,7 @@ class MappingKernels:
 
     Attributes:
         loss: :func:`~sgs_slam_core.kernels.losses.mapping_loss_of`, its backward compiled with it.
-        update: :func:`~sgs_slam_core.kernels.adam.adam_update`, every field's Adam step at once.
+        update: :func:`~sgs_slam_core.kernels.adam.adam_update`, a field's Adam step.
     """
 
     loss: MappingLossOf | None = None

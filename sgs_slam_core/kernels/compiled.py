@@ -108,6 +108,6 @@ def compiled_icp_kernels(announce: Callable[[str], None] | None = None) -> IcpKe
 
 def compiled_mapping_kernels(announce: Callable[[str], None] | None = None) -> MappingKernels:
     """The mapping loss (forward and backward) and Adam's update compiled by ``torch.compile`` (any device)."""
-    # the map's size changes with every window: one graph for every size
+    # the map's size changes with every window: one graph (per field) for every size
     update = CompiledFunction(adam_update, announce, dynamic=True)
     return MappingKernels(loss=CompiledFunction(mapping_loss_of, announce), update=update)

@@ -4,7 +4,7 @@
 around it than in it on the SLAM's small steps. The update is the library's fused kernel, with the
 same step counting (incremented before the update, as ``torch.optim.Adam`` does); the CPU and CUDA
 both have it, so this is the one optimiser step of every kernel backend, unless an ``update`` is
-given (``render.compile``: :func:`~sgs_slam_core.kernels.adam.adam_update` compiled, every tensor at once).
+given (``render.compile``: :func:`~sgs_slam_core.kernels.adam.adam_update` compiled).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ class FusedAdam:
 
     ``params`` is held by reference: :meth:`replace` swaps a tensor (e.g. after pruning) together with
     its sliced moments. ``update`` (:func:`~sgs_slam_core.kernels.adam.adam_update`'s signature) runs
-    the step of every tensor in one call instead of the fused kernel per tensor.
+    each tensor's step in place of the fused kernel.
     """
 
     def __init__(
@@ -62,16 +62,11 @@ class FusedAdam:
                 self.params[name].grad = None
 
     def _update(self, update: AdamUpdate, names: list[str]) -> None:
-        params, states = [self.params[n] for n in names], [self.state[n] for n in names]
-        update(
-            params,
-            [p.grad for p in params if p.grad is not None],
-            [s.exp_avg for s in states],
-            [s.exp_avg_sq for s in states],
-            [s.step for s in states],
-            [self.lrs[n] for n in names],
-            self.eps,
-        )
+        # a call per tensor: which tensors have a gradient changes from step to step (a frame without
+        # labels leaves the semantics out), and one compiled graph per tensor serves every combination
+        for name in names:
+            p, s = self.params[name], self.state[name]
+            update([p], [p.grad], [s.exp_avg], [s.exp_avg_sq], [s.step], [self.lrs[name]], self.eps)
 
     def _fused(self, name: str) -> None:
         p, s = self.params[name], self.state[name]

@@ -30,7 +30,7 @@ class GaussianOptimizer:
         frozen_labels: frozenset[int] = frozenset(),
         update: AdamUpdate | None = None,
     ) -> None:
-        """``update``: Adam's step of every field at once (``kernels.mapping.update``), else the fused one per field."""
+        """``update``: Adam's step of a field (``kernels.mapping.update``), else the fused kernel."""
         self._labels, self._birth, self._weight = gaussians.labels, gaussians.birth_frame, gaussians.label_weight
         self._frozen_ids = torch.tensor(sorted(frozen_labels), dtype=torch.int64, device=gaussians.device)
         lrs = {

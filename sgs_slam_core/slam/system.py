@@ -52,6 +52,10 @@ from sgs_slam_core.slam.window import choose_window, upload_window
 # live: 78 against 73 % mIoU; lockstep, clean labels: 90.6 against 91.3 %).
 _CONFIDENT_VOTES = 1.0
 
+# Frames a warm-up tracks and maps: the first is only mapped, the second meets the ICP and the
+# tracker, the third (without labels) a window of two.
+_WARM_UP_FRAMES = 3
+
 __all__ = ["MapOutcome", "Slam", "StepResult", "TrackOutcome", "resolve_device"]
 
 log = logging.getLogger(__name__)
@@ -106,12 +110,24 @@ class Slam:
         keep_freed_heap()  # frame-sized buffers are reused, not faulted in again every frame
         self.reset()
 
-    def prepare(self, announce: Callable[[str], None]) -> None:
+    def prepare(self, announce: Callable[[str], None], sample: Frame | None = None) -> None:
         """Build (or load) the compiled kernels this configuration uses, before anything is timed.
 
         ``announce`` gets a line for each kernel that must be compiled first (about a minute each).
+        With ``render.compile``, ``sample`` (a frame of the coming stream) is tracked and mapped a few
+        times by a throwaway SLAM, so ``torch.compile`` traces its graphs at the stream's image size
+        now: compiled on first use, live, a frame would wait for seconds and the camera move on.
         """
         self.kernels.prepare(announce)
+        if self.config.render.compile and sample is not None:
+            h, w = sample.intrinsics.shape
+            announce(f"render.compile: compiling for {w}x{h} (seconds; cached on disk for later runs)")
+            warm = Slam(self.config, self.codec.table, self.given_c2w)
+            for i in range(_WARM_UP_FRAMES):
+                labels = sample.labels if i < _WARM_UP_FRAMES - 1 else None  # the graphs without a semantic target
+                stamp_ns = sample.stamp_ns + i * 33_000_000
+                frame = replace(sample, index=i, stamp_ns=stamp_ns, labels=labels, gt_c2w=None)
+                warm.map(frame, warm.track(frame))
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 import torch
 
+from sgs_slam_core.config import load_config
 from sgs_slam_core.config.sections import MappingSettings
+from sgs_slam_core.datasets import open_dataset
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.kernels import build_kernels, render
 from sgs_slam_core.kernels.base import MappingKernels
@@ -14,7 +16,9 @@ from sgs_slam_core.kernels.compiled import compiled_mapping_kernels
 from sgs_slam_core.kernels.losses import mapping_inputs, mapping_loss_of, mapping_loss_reference
 from sgs_slam_core.render import RenderSettings
 from sgs_slam_core.slam import mapper
+from sgs_slam_core.slam.system import Slam
 
+from ..conftest import FAST_SLAM
 from ..render.scenes import random_scene
 
 COMPILED = compiled_mapping_kernels()
@@ -74,3 +78,17 @@ def test_a_window_mapped_with_the_compiled_parts_ends_where_the_eager_one_does()
     for name in ("means", "log_scales", "logit_opacities", "colors", "semantics"):
         a, b = getattr(fast.gaussians, name), getattr(slow.gaussians, name)
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5, msg=name)
+
+
+def test_prepare_compiles_on_a_sample_frame_and_leaves_the_slam_as_it_was(tiny_scene) -> None:
+    dataset = open_dataset(tiny_scene)
+    config = load_config("synthetic", overrides=[*FAST_SLAM, "render.backend=torch", "render.compile=true"])
+    slam = Slam(config, dataset.label_table)
+    lines: list[str] = []
+    traced = torch._dynamo.utils.counters["frames"]["ok"]
+    slam.prepare(lines.append, dataset[0])
+    assert lines == ["render.compile: compiling for 64x48 (seconds; cached on disk for later runs)"]
+    assert torch._dynamo.utils.counters["frames"]["ok"] > traced  # graphs were traced (or found cached)
+    assert not slam.trajectory and len(slam.gaussians) == 0 and len(slam.keyframes) == 0
+    steps = [slam.process(dataset[i]) for i in range(3)]
+    assert not any(step.track.failed for step in steps) and steps[0].index == 0
