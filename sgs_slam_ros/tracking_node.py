@@ -87,6 +87,7 @@ class TrackingNode(Node):
         self.forwarder = FrameForwarder(self, self.params["use_semantics"]) if forward else None
         self._forwarded_pose: PoseStamped | None = None  # the pose of the last frame forwarded
         self.pipeline = pipeline = self._pipeline(standalone)
+        self._compile_pending = pipeline.slam.config.render.compile  # traced on the first frame
         self.activity = Activity(pipeline.idle)
         pipeline.pose_listeners.append(self._on_pose)
         pipeline.map_listeners.append(lambda *_: self.activity.end())
@@ -152,6 +153,12 @@ class TrackingNode(Node):
 
     # ------------------------------------------------------------------ inputs
     def _on_frame(self, frame: Frame) -> None:
+        if self._compile_pending:
+            # render.compile: the graphs are traced at the camera's size on the first frame, which is
+            # left out; traced at first use, frame after frame would wait seconds as the camera moved on
+            self._compile_pending = False
+            self.pipeline.slam.prepare(self.get_logger().info, frame)
+            return
         self.activity.begin()
         self.pipeline.submit_frame(frame, time.monotonic())
 

@@ -34,8 +34,8 @@ class RenderSettings:
             fused kernels instead of a hundred-odd launches; on ``cpu`` it replaces the backend's own
             C++ ICP, which is faster there (its C++ mapping loss stays). Each new image size
             compiles first (seconds per pyramid level on a GPU host, ten to twenty on two CPU cores):
-            ``sgs-slam run`` does it on the first frame before the stream starts, the ROS nodes on
-            their first frames.
+            ``sgs-slam run`` does it on the first frame before the stream starts, the tracking node
+            on the first frame it receives (which it leaves out).
         tile_size: tile side in pixels for the torch backend (8 is fastest on CPU).
         cpu_tile_size: tile side of the compiled cpu backend (4, 8, 16 or 32; capped at the build's
             largest, 32 with AVX-512 float32, else 16); 0 picks 32 (the fastest from 80x60 to
