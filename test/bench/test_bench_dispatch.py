@@ -50,3 +50,18 @@ def test_a_compiled_graph_runs_compiled_and_its_kernels_are_counted():
     assert counter.ops["mul"] == 0 and counter.ops["add"] == 0  # the fused kernel, not the eager ops
     assert kernels.total() == 1 and all(INDUCTOR_KERNEL in name for name in kernels)
     assert counter.host_reads["_local_scalar_dense"] == 1
+
+
+def test_a_renders_backward_is_left_out_and_counted_apart():
+    x = torch.ones(4, requires_grad=True)
+    counter = OpCounter()
+    with counter.active():
+        with counter.paused():  # the render's forward
+            rendered = (x * 2).sigmoid()
+        rendered.register_hook(counter.render_backward_begins)
+        (rendered * 3).sum().backward()  # the loss's backward counted, then the render's left out
+        after = x.grad + 1  # counted again once backward() returned
+    assert float(after.sum()) > 4.0
+    assert "sigmoid" not in counter.ops and "sigmoid_backward" not in counter.ops
+    assert counter.render_backward >= 2  # sigmoid's backward and x * 2's, at least
+    assert counter.ops["sum"] == 1 and counter.ops["add"] == 1 and counter.ops["mul"] >= 2
