@@ -45,6 +45,8 @@ log = logging.getLogger(__name__)
 
 # Compiled variants kept per function: a pyramid's levels, with and without channels and weights,
 # and more than one resolution in a process (Dynamo's default of 8 would run the rest eagerly).
+# Floats (settings, learning rates) are constants of a run: specialised, each is a constant of the
+# graph; left symbolic, every call would wrap each in a fresh tensor (a host-to-device copy on a GPU).
 RECOMPILE_LIMIT = 64
 
 
@@ -67,7 +69,7 @@ class CompiledFunction:
         if self.failed is not None:
             return self.function(*args)
         try:
-            with torch._dynamo.config.patch(recompile_limit=RECOMPILE_LIMIT):
+            with torch._dynamo.config.patch(recompile_limit=RECOMPILE_LIMIT, specialize_float=True):
                 return self.compiled(*args)
         except torch._dynamo.exc.BackendCompilerFailed as error:
             inner = error.inner_exception
