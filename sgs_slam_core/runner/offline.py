@@ -264,7 +264,8 @@ def _track_and_map(
         slam = Slam(config, dataset.label_table)
         provenance.update(environment(slam.device))
         write_run_info(out / "run.yaml", provenance, "running")
-        slam.prepare(_announce, dataset[0] if len(dataset) else None)  # compile before anything is timed
+        sample = dataset[0] if config.render.compile and len(dataset) else None  # render.compile traces on it
+        slam.prepare(_announce, sample)  # compile before anything is timed
         label = "slam" if realtime is None else "slam (realtime)"
         observers: list[Viewer] = [
             *([SlamProgress(len(dataset), label)] if show_progress else []),
