@@ -1,11 +1,14 @@
-"""Random Gaussian scenes for renderer tests."""
+"""Random Gaussian scenes for renderer tests, and frames rendered from them."""
 
 from __future__ import annotations
 
 import torch
 
+from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.geometry import Intrinsics
+from sgs_slam_core.kernels import render
+from sgs_slam_core.render import RenderSettings
 
 
 def random_scene(
@@ -39,3 +42,22 @@ def random_scene(
     )
     k = Intrinsics(0.9 * width, 0.9 * width, (width - 1) / 2, (height - 1) / 2, width, height)
     return gm, k
+
+
+def unexplained_frame(
+    seed: int, ignore: bool, settings: RenderSettings, n: int = 600, width: int = 64, height: int = 48
+) -> tuple[GaussianMap, FrameTensors]:
+    """A random map and a frame it does not quite explain: its render from a moved camera, holes in the depth.
+
+    ``ignore``: a fifth of the pixels are ignored (edit locks).
+    """
+    gm, k = random_scene(n, width, height, seed=seed)
+    w2c = torch.eye(4)
+    w2c[:3, 3] = torch.tensor([0.03, -0.02, 0.05])
+    with torch.no_grad():
+        target = render(gm, k, w2c, settings)
+    g = torch.Generator().manual_seed(seed)
+    depth = target.depth.clone()
+    depth[torch.rand(depth.shape, generator=g) < 0.1] = 0  # no measurement
+    mask = torch.rand(depth.shape, generator=g) < 0.2 if ignore else None
+    return gm, FrameTensors(0, k, target.color, depth, None, target.semantic.softmax(-1), mask)

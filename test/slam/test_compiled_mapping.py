@@ -9,7 +9,6 @@ import torch
 from sgs_slam_core.config import load_config
 from sgs_slam_core.config.sections import MappingSettings
 from sgs_slam_core.datasets import open_dataset
-from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.kernels import build_kernels, render
 from sgs_slam_core.kernels.base import MappingKernels
 from sgs_slam_core.kernels.compiled import compiled_mapping_kernels
@@ -19,24 +18,14 @@ from sgs_slam_core.slam import mapper
 from sgs_slam_core.slam.system import Slam
 
 from ..conftest import FAST_SLAM
-from ..render.scenes import random_scene
+from ..render.scenes import unexplained_frame
 
 COMPILED = compiled_mapping_kernels()
 TORCH = RenderSettings(backend="torch")
 
 
 def _frame(seed: int, ignore: bool) -> tuple:
-    """A random map and a frame it does not quite explain (targets from a moved camera, holes in the depth)."""
-    gm, k = random_scene(400, 48, 36, seed=seed)
-    w2c = torch.eye(4)
-    w2c[:3, 3] = torch.tensor([0.03, -0.02, 0.05])
-    with torch.no_grad():
-        target = render(gm, k, w2c, TORCH)
-    g = torch.Generator().manual_seed(seed)
-    depth = target.depth.clone()
-    depth[torch.rand(depth.shape, generator=g) < 0.1] = 0
-    mask = torch.rand(depth.shape, generator=g) < 0.2 if ignore else None
-    return gm, FrameTensors(0, k, target.color, depth, None, target.semantic.softmax(-1), mask)
+    return unexplained_frame(seed, ignore, TORCH, n=400, width=48, height=36)
 
 
 @pytest.mark.parametrize(("semantic", "ignore", "blur"), [(True, False, "band"), (False, True, "conv")])

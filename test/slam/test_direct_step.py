@@ -7,15 +7,14 @@ import pytest
 import torch
 
 from sgs_slam_core.config.sections import MappingSettings
-from sgs_slam_core.frame_data import FrameTensors
-from sgs_slam_core.kernels import build_kernels, render
+from sgs_slam_core.kernels import build_kernels
 from sgs_slam_core.kernels.cpu.extensions import EXTENSIONS
 from sgs_slam_core.kernels.cpu.kernels import CpuKernels
 from sgs_slam_core.render import RenderSettings
 from sgs_slam_core.slam import mapper
 from sgs_slam_core.slam.optimizer import GaussianOptimizer
 
-from ..render.scenes import random_scene
+from ..render.scenes import unexplained_frame
 
 pytestmark = pytest.mark.skipif(
     not all(ext.is_available() for ext in EXTENSIONS), reason="compiled kernels unavailable"
@@ -25,18 +24,7 @@ CPU = RenderSettings(backend="cpu")
 
 
 def _frame(seed: int, ignore: bool) -> tuple:
-    """A random map and a measured frame it does not quite explain (targets from a moved camera)."""
-    gm, k = random_scene(600, 64, 48, seed=seed)
-    w2c = torch.eye(4)
-    w2c[:3, 3] = torch.tensor([0.03, -0.02, 0.05])
-    with torch.no_grad():
-        target = render(gm, k, w2c, CPU)
-    g = torch.Generator().manual_seed(seed)
-    depth = target.depth.clone()
-    depth[torch.rand(depth.shape, generator=g) < 0.1] = 0  # no measurement
-    mask = torch.rand(depth.shape, generator=g) < 0.2 if ignore else None
-    data = FrameTensors(0, k, target.color, depth, None, target.semantic.softmax(-1), mask)
-    return gm, data
+    return unexplained_frame(seed, ignore, CPU)
 
 
 @pytest.mark.parametrize("semantic", [True, False])
