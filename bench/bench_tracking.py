@@ -107,6 +107,7 @@ def same_map_pass(
 ) -> tuple[SideBySide, list]:
     """Pass 1: the logs and, per tracked frame, its :class:`Truth` (None without ground truth)."""
     slam = Slam(config, dataset.label_table)
+    slam.prepare(lambda line: print(line, flush=True), dataset[0] if len(dataset) else None)  # compiled, not timed
     side = SideBySide(trackers, driver)
     slam.tracker = slam.localizer.tracker = side  # the localizer runs the tracker it was built with
     truth: list[Truth | None] = []
