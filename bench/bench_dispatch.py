@@ -6,7 +6,8 @@ these counts say on any machine what a frame costs a GPU in launches. Counted wi
 ``TorchDispatchMode`` after ``--warmup`` frames:
 
 - a tracked frame: everything ``Slam.track`` dispatches, the map's renders left out;
-- a mapping step: the ops between two steps of ``Slam.map``'s window, the render's forward and
+- a mapping step (the second to the ``--steps + 1``-th of each counted frame's window): the ops
+  between two steps of ``Slam.map``'s window, the render's forward and
   backward left out (the backward from the first gradient reaching a render's output to the end of
   ``backward()``: autograd runs every later node, the loss's, before any earlier one, the render's).
 
@@ -14,7 +15,7 @@ Host reads: ``item()`` / ``float()`` / ``bool()`` of a tensor, ops whose output 
 data (``nonzero``, boolean indexing, ``unique``, ``masked_select``, ...), and ``tolist()`` / ``cpu()``
 calls.
 
-With ``--set render.compile=true`` the compiled graphs (the ICP, the mapping loss and step) run as
+With ``--set render.compile=true`` the compiled graphs (the ICP, the mapping loss, Adam's update) run as
 compiled while counted: a unit's count is then the ops they still dispatch (matrix products, solves,
 allocations) plus every kernel Inductor generated for them that ran (each a launch, as its Triton
 kernel would be on a GPU), counted by the profiler on the CPU.
