@@ -7,9 +7,9 @@ these counts say on any machine what a frame costs a GPU in launches. Counted wi
 
 - a tracked frame: everything ``Slam.track`` dispatches, the map's renders left out;
 - a mapping step (the second to the ``--steps + 1``-th of each counted frame's window): the ops
-  between two steps of ``Slam.map``'s window, the render's forward and
-  backward left out (the backward from the first gradient reaching a render's output to the end of
-  ``backward()``: autograd runs every later node, the loss's, before any earlier one, the render's).
+  between two steps of ``Slam.map``'s window, the render's forward and backward left out (the
+  backward from the first gradient reaching a render's output to the end of ``backward()``:
+  autograd runs every later node, the loss's, before any earlier one, the render's).
 
 Host reads: ``item()`` / ``float()`` / ``bool()`` of a tensor, ops whose output size depends on the
 data (``nonzero``, boolean indexing, ``unique``, ``masked_select``, ...), and ``tolist()`` / ``cpu()``
