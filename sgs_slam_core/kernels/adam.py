@@ -8,8 +8,6 @@ matches the fused kernel to rounding (tests).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import torch
 from torch import Tensor
 
@@ -20,21 +18,20 @@ BETAS = (0.9, 0.999)
 
 @torch.no_grad()
 def adam_update(
-    params: Sequence[Tensor],  # each updated in place
-    grads: Sequence[Tensor],  # like params
-    exp_avgs: Sequence[Tensor],  # like params, updated in place
-    exp_avg_sqs: Sequence[Tensor],  # like params, updated in place
-    steps: Sequence[Tensor],  # [] float32 each: incremented before the update, as torch.optim.Adam does
-    lrs: Sequence[float],
+    p: Tensor,  # updated in place
+    grad: Tensor,  # like p
+    exp_avg: Tensor,  # like p, updated in place
+    exp_avg_sq: Tensor,  # like p, updated in place
+    step: Tensor,  # [] float32: incremented before the update, as torch.optim.Adam does
+    lr: float,
     eps: float,
 ) -> None:
-    """One Adam step (betas :data:`BETAS`, no weight decay) of each ``params[i]`` at ``lrs[i]``."""
+    """One Adam step of ``p`` (betas :data:`BETAS`, no weight decay)."""
     beta1, beta2 = BETAS
-    for p, g, m, v, step, lr in zip(params, grads, exp_avgs, exp_avg_sqs, steps, lrs, strict=True):
-        step.add_(1)
-        m.lerp_(g, 1 - beta1)
-        v.mul_(beta2).addcmul_(g, g, value=1 - beta2)
-        count = step.double()  # the bias corrections in double precision, as torch.optim.Adam takes them
-        step_size = (lr / (1 - beta1**count)).to(p.dtype)  # []
-        denom = v.sqrt() / (1 - beta2**count).sqrt().to(p.dtype) + eps
-        p.sub_(step_size * (m / denom))
+    step.add_(1)
+    exp_avg.lerp_(grad, 1 - beta1)
+    exp_avg_sq.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+    count = step.double()  # the bias corrections in double precision, as torch.optim.Adam takes them
+    step_size = (lr / (1 - beta1**count)).to(p.dtype)  # []
+    denom = exp_avg_sq.sqrt() / (1 - beta2**count).sqrt().to(p.dtype) + eps
+    p.sub_(step_size * (exp_avg / denom))

@@ -10,7 +10,7 @@ with ``render.compile`` :mod:`sgs_slam_core.kernels.adam`'s update compiled (``K
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -35,9 +35,8 @@ __all__ = ["AdamUpdate", "IcpKernels", "Kernels", "MappingKernels"]
 # kernels.losses.mapping_loss_of's signature: rendered colour, depth, semantics, target, weights, SSIM window
 MappingLossOf = Callable[["Tensor", "Tensor", "Tensor", "MappingTarget", "MappingWeights", "SsimBlur"], "Tensor"]
 
-# kernels.adam.adam_update's: params, grads, first and second moments, step counts, learning rates, eps
-_Tensors = Sequence["Tensor"]
-AdamUpdate = Callable[[_Tensors, _Tensors, _Tensors, _Tensors, _Tensors, Sequence[float], float], None]
+# kernels.adam.adam_update's: parameter, gradient, first and second moments, step count, learning rate, eps
+AdamUpdate = Callable[["Tensor", "Tensor", "Tensor", "Tensor", "Tensor", float, float], None]
 
 
 @dataclass(frozen=True)

@@ -66,7 +66,7 @@ class FusedAdam:
         # labels leaves the semantics out), and one compiled graph per tensor serves every combination
         for name in names:
             p, s = self.params[name], self.state[name]
-            update([p], [p.grad], [s.exp_avg], [s.exp_avg_sq], [s.step], [self.lrs[name]], self.eps)
+            update(p, p.grad, s.exp_avg, s.exp_avg_sq, s.step, self.lrs[name], self.eps)
 
     def _fused(self, name: str) -> None:
         p, s = self.params[name], self.state[name]
