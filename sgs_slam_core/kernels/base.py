@@ -26,14 +26,14 @@ if TYPE_CHECKING:
     from sgs_slam_core.config.sections import MappingSettings, TrackingSettings
     from sgs_slam_core.frame_data import FrameTensors
     from sgs_slam_core.gaussians import GaussianMap
-    from sgs_slam_core.kernels.losses import MappingTarget, MappingWeights, TrackingLoss
+    from sgs_slam_core.kernels.losses import MappingWeights, MeasuredImages, TrackingLoss
     from sgs_slam_core.kernels.photometric import SsimBlur
     from sgs_slam_core.render.output import RenderOutput
 
 __all__ = ["AdamUpdate", "IcpKernels", "Kernels", "MappingKernels"]
 
 # kernels.losses.mapping_loss_of's signature: rendered colour, depth, semantics, target, weights, SSIM window
-MappingLossOf = Callable[["Tensor", "Tensor", "Tensor", "MappingTarget", "MappingWeights", "SsimBlur"], "Tensor"]
+MappingLossOf = Callable[["Tensor", "Tensor", "Tensor", "MeasuredImages", "MappingWeights", "SsimBlur"], "Tensor"]
 
 # kernels.adam.adam_update's: parameter, gradient, first and second moments, step count, learning rate, eps
 AdamUpdate = Callable[["Tensor", "Tensor", "Tensor", "Tensor", "Tensor", float, float], None]

@@ -18,9 +18,9 @@ from sgs_slam_core.kernels.photometric import SsimBlur, photometric_loss
 from sgs_slam_core.render.output import RenderOutput
 
 __all__ = [
-    "MappingTarget",
     "MappingTargets",
     "MappingWeights",
+    "MeasuredImages",
     "TrackingLoss",
     "mapping_inputs",
     "mapping_loss_of",
@@ -91,8 +91,11 @@ def mapping_targets(out: RenderOutput, frame: FrameTensors, s: MappingSettings, 
     return MappingTargets(semantic, rgb, sem_target)
 
 
-class MappingTarget(NamedTuple):
-    """What the mapping loss compares a render with: one frame's tensors."""
+class MeasuredImages(NamedTuple):
+    """What the mapping loss compares a render with: one frame's measured images.
+
+    Unlike :class:`MappingTargets` (the one-call losses'), ignored pixels are not replaced yet.
+    """
 
     rgb: Tensor  # [H, W, 3]
     depth: Tensor  # [H, W] m, 0 = invalid
@@ -112,10 +115,10 @@ class MappingWeights(NamedTuple):
 
 def mapping_inputs(
     frame: FrameTensors, s: MappingSettings, use_semantics: bool
-) -> tuple[MappingTarget, MappingWeights]:
+) -> tuple[MeasuredImages, MappingWeights]:
     """The frame's targets (semantics only where the loss has the term) and the settings' weights."""
     semantic = frame.semantic if semantic_term(use_semantics, frame, s.weight_semantic) else None
-    target = MappingTarget(frame.rgb, frame.depth, frame.valid, semantic, frame.ignore)
+    target = MeasuredImages(frame.rgb, frame.depth, frame.valid, semantic, frame.ignore)
     return target, MappingWeights(s.weight_depth, s.weight_color, s.weight_semantic, s.ssim_weight)
 
 
@@ -123,7 +126,7 @@ def mapping_loss_of(
     color: Tensor,  # [H, W, 3] rendered
     depth: Tensor,  # [H, W] rendered
     semantic: Tensor,  # [H, W, S] rendered (unused without a target)
-    target: MappingTarget,
+    target: MeasuredImages,
     w: MappingWeights,
     blur: SsimBlur = "band",
 ) -> Tensor:  # []
