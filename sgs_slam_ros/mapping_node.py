@@ -98,7 +98,7 @@ class MappingNode(Node):
         self.reset_listeners: list[Callable[[], None]] = []  # e.g. the composed tracking node's state
         self._frames: OrderedDict[int, Frame] = OrderedDict()  # standalone: frames waiting for their pose
         self._poses: OrderedDict[int, np.ndarray] = OrderedDict()  # and poses waiting for their frame
-        self._pair_lock = threading.Lock()
+        self._pair_lock, self._paired_stamp = threading.Lock(), -1  # the stamp of the last frame handed over
         if pipeline is None:
             slam = Slam(slam_config(self.params))
             slam.prepare(self.get_logger().info)  # compile the CPU kernels now, not inside the first frame
@@ -112,6 +112,8 @@ class MappingNode(Node):
             )
             self._subscribe_inputs(pipeline)
         self.pipeline = pipeline
+        # render.compile, standalone: traced on the first frame, not in the first windows (composed: by tracking)
+        self._compile_pending = self._owns_pipeline and pipeline.slam.config.render.compile
         self.saver = self._saver()
         pipeline.map_listeners.append(self._on_mapped)
         pipeline.label_listeners.append(lambda *_: self._classes_changed())
@@ -164,6 +166,9 @@ class MappingNode(Node):
         self.create_subscription(PoseStamped, "tracking_node/pose", self._on_pose, output_qos(50))
 
     def _on_frame(self, frame: Frame) -> None:
+        if self._compile_pending:
+            self._compile_pending = False
+            self.pipeline.slam.prepare(self.get_logger().info, frame)
         with self._pair_lock:
             self._frames[frame.stamp_ns] = frame
             self._pair()
@@ -183,8 +188,12 @@ class MappingNode(Node):
         """Map each frame whose pose came; let go of those older than the newest pair, which cannot pair now."""
         paired = [s for s in self._frames if s in self._poses]
         for stamp in paired:
+            frame, c2w = self._frames.pop(stamp), self._poses.pop(stamp)
+            if stamp <= self._paired_stamp:  # sent again by a lockstep tracker waiting on a busy map: mapped
+                continue
+            self._paired_stamp = stamp
             self.activity.begin()
-            self.pipeline.submit_job(MapJob(self._frames.pop(stamp), c2w=self._poses.pop(stamp)))
+            self.pipeline.submit_job(MapJob(frame, c2w=c2w))
         if paired:  # both streams come in stamp order
             for stale in [s for s in self._frames if s < paired[-1]]:
                 del self._frames[stale]
@@ -386,6 +395,7 @@ class MappingNode(Node):
         with self._pair_lock:
             self._frames.clear()
             self._poses.clear()
+            self._paired_stamp = -1
         self.last_mapped_stamp = -1
         self._view = None
         self.points_out.now()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -10,11 +11,11 @@ from torch import Tensor
 
 from sgs_slam_core.frame import CompactFrame
 from sgs_slam_core.geometry.camera import Intrinsics
-from sgs_slam_core.geometry.icp import IcpKernels, IcpLevel, IcpSettings, align_depth, icp_pyramid
+from sgs_slam_core.geometry.icp import IcpKernels, IcpLevel, IcpSettings, align_device, icp_pyramid
 from sgs_slam_core.geometry.views import views_near
 from sgs_slam_core.profiling import stage
 
-__all__ = ["IcpInit", "IcpOutcome", "ReferencePolicy"]
+__all__ = ["DeviceStart", "IcpInit", "IcpOutcome", "ReferencePolicy"]
 
 
 @dataclass(frozen=True)
@@ -24,6 +25,13 @@ class IcpOutcome:
     used: bool  # the refined pose replaced the prediction
     inlier_fraction: float
     rms_m: float
+
+
+class DeviceStart(NamedTuple):
+    """A starting pose the ICP refined, still on the device: the tracker reads it back with its own result."""
+
+    c2w: Tensor  # [4, 4] float64: the ICP's pose, or the prediction where it was not used
+    outcome: Tensor  # [3] float64: used (1 or 0), inlier fraction, rms (m); for :meth:`IcpInit.settle`
 
 
 @dataclass(frozen=True)
@@ -113,6 +121,20 @@ class IcpInit:
         self._reference_failed = not outcome.used
         return c2w, outcome
 
+    def start(self, depth: Tensor, intrinsics: Intrinsics, predicted_c2w: np.ndarray) -> DeviceStart | None:
+        """As :meth:`refine`, without reading the result back; None where there is no reference.
+
+        The caller hands the outcome, once read, to :meth:`settle`.
+        """
+        ref = self._reference
+        if ref is None or ref.intrinsics != intrinsics:
+            return None
+        return DeviceStart(*self._align_device(ref, depth, intrinsics, predicted_c2w))
+
+    def settle(self, used: bool) -> None:
+        """What :meth:`start`'s outcome said: whether the ICP's pose was used (else the reference is replaced)."""
+        self._reference_failed = not used
+
     def refine_against(
         self, reference: CompactFrame, depth: Tensor, intrinsics: Intrinsics, predicted_c2w: np.ndarray
     ) -> tuple[np.ndarray, IcpOutcome | None]:  # depth [H, W] m -> c2w [4, 4]
@@ -127,14 +149,28 @@ class IcpInit:
     def _align(
         self, ref: _Reference, depth: Tensor, intrinsics: Intrinsics, predicted_c2w: np.ndarray
     ) -> tuple[np.ndarray, IcpOutcome]:
-        init = torch.as_tensor(np.linalg.inv(ref.c2w) @ predicted_c2w, dtype=torch.float64, device=depth.device)
+        """The start and what the ICP did, in one host read."""
+        c2w, outcome = self._align_device(ref, depth, intrinsics, predicted_c2w)
+        host = torch.cat([c2w.reshape(-1), outcome]).cpu().numpy()
+        used, fraction, rms = (float(v) for v in host[16:])
+        return host[:16].reshape(4, 4), IcpOutcome(used > 0, fraction, rms)
+
+    def _align_device(
+        self, ref: _Reference, depth: Tensor, intrinsics: Intrinsics, predicted_c2w: np.ndarray
+    ) -> tuple[Tensor, Tensor]:  # c2w [4, 4] float64, outcome [3] float64 (used, inlier fraction, rms m)
+        """The ICP's pose where enough of the frame's depth found a correspondence, else the prediction."""
+        device = depth.device
+        init = torch.as_tensor(np.linalg.inv(ref.c2w) @ predicted_c2w, dtype=torch.float64, device=device)
         with stage("icp"):
             if ref.levels is None:
                 levels = len(self.settings.steps_for(intrinsics.width))
                 ref.levels = icp_pyramid(ref.depth, ref.intrinsics, levels, self.kernels.level)
-            result = align_depth(depth, intrinsics, ref.levels, init, self.settings, self.kernels)
-        used = result.inlier_fraction >= self.min_inliers and np.isfinite(result.rms_m)
-        outcome = IcpOutcome(used, result.inlier_fraction, result.rms_m)
-        if not used:
-            return predicted_c2w, outcome
-        return ref.c2w @ result.src_to_ref.numpy(), outcome
+            result = align_device(depth, intrinsics, ref.levels, init, self.settings, kernels=self.kernels)
+        fraction = result.inliers / result.valid_source.clamp_min(1.0)
+        found = result.inliers > 0
+        rms = torch.where(found, torch.sqrt(result.sum_sq_m2 / result.inliers.clamp_min(1.0)), torch.inf)
+        used = (fraction >= self.min_inliers) & torch.isfinite(rms)
+        ref_c2w = torch.as_tensor(ref.c2w, dtype=torch.float64, device=device)
+        predicted = torch.as_tensor(predicted_c2w, dtype=torch.float64, device=device)
+        c2w = torch.where(used, ref_c2w @ result.src_to_ref, predicted)
+        return c2w, torch.stack([used.double(), fraction, rms])

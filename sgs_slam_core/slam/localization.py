@@ -16,6 +16,7 @@ from sgs_slam_core.config.schema import SlamConfig
 from sgs_slam_core.frame import Frame
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
+from sgs_slam_core.geometry.se3 import se3_inverse
 from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.slam.feature_odometry import FeatureView
 from sgs_slam_core.slam.features import Landmarks
@@ -100,8 +101,10 @@ class Localizer:
         placed so, a failed frame fails as one without features would.
         """
         start = self.motion.start(frame.stamp_ns, data, view)
-        w2c = np.linalg.inv(start.c2w)
-        result = self.tracker.track(gaussians, data, w2c, use_sem, newer_frame_waiting, self._landmarks(view))
+        w2c = np.linalg.inv(start.c2w) if isinstance(start.c2w, np.ndarray) else se3_inverse(start.c2w)
+        landmarks = self._landmarks(view)
+        result = self.tracker.track(gaussians, data, w2c, use_sem, newer_frame_waiting, landmarks, start.icp_outcome)
+        self.motion.settle(result.also_read)
         failure = self.guard.check(*self._evidence(result, view))
         if failure is not None and self.config.guard.retry:
             second = view.c2w if view is not None and view.c2w is not None and not start.from_features else None

@@ -10,6 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from sgs_slam_core.config.sections import FeatureSettings, MotionSettings
 from sgs_slam_core.frame import CompactFrame, Frame
@@ -33,8 +34,9 @@ START_AGREEMENT = 0.8
 class Start(NamedTuple):
     """A frame's starting pose and where it came from."""
 
-    c2w: np.ndarray  # [4, 4]
+    c2w: np.ndarray | Tensor  # [4, 4] float64; the ICP's start stays on the frame's device, not read back
     from_features: bool  # the feature pose replaced the constant-velocity guess
+    icp_outcome: Tensor | None = None  # [3] float64 where the ICP ran: for :meth:`MotionModel.settle`, once read
 
 
 class MotionModel:
@@ -76,14 +78,21 @@ class MotionModel:
         return (poses[-1] if poses else self.initial_c2w).copy()
 
     def predict(self, stamp_ns: int, data: FrameTensors, view: FeatureView | None = None) -> np.ndarray:  # c2w [4, 4]
-        """The starting pose of a frame taken at ``stamp_ns`` (:meth:`start`'s pose)."""
-        return self.start(stamp_ns, data, view).c2w
+        """The starting pose of a frame taken at ``stamp_ns``: :meth:`start`'s, read back and settled."""
+        start = self.start(stamp_ns, data, view)
+        if start.icp_outcome is None:
+            return start.c2w
+        host = torch.cat([start.c2w.reshape(-1), start.icp_outcome]).cpu().numpy()
+        self.settle(host[16:])
+        return host[:16].reshape(4, 4)
 
     def start(self, stamp_ns: int, data: FrameTensors, view: FeatureView | None = None) -> Start:
         """The starting pose of a frame taken at ``stamp_ns``; ``data`` is its depth for the ICP.
 
         ``view`` (:meth:`view` of the frame): its feature pose replaces the constant-velocity guess
-        where the guess explains fewer of its inlier matches than ``START_AGREEMENT``.
+        where the guess explains fewer of its inlier matches than ``START_AGREEMENT``. Where the ICP
+        refines the pose, it stays on the device; the caller reads it with the tracked pose and
+        hands the ICP's outcome to :meth:`settle`.
         """
         poses = [*self._resumed, *(c2w for _, c2w in self._history)]
         prev = poses[-1] if poses else self.initial_c2w
@@ -93,8 +102,15 @@ class MotionModel:
         if from_features:
             c2w = view.c2w
         if self._icp is not None and self._intervals_since_last(stamp_ns) >= self.settings.icp_min_gap:
-            c2w, _ = self._icp.refine(_measured_depth(data), data.intrinsics, c2w)
+            refined = self._icp.start(_measured_depth(data), data.intrinsics, c2w)
+            if refined is not None:
+                return Start(refined.c2w, from_features, refined.outcome)
         return Start(c2w, from_features)
+
+    def settle(self, icp_outcome: np.ndarray | None) -> None:  # [3] (Start.icp_outcome, read back)
+        """The ICP's outcome for a :meth:`start`, read back: a reference it failed against is replaced."""
+        if self._icp is not None and icp_outcome is not None:
+            self._icp.settle(bool(icp_outcome[0] > 0))
 
     def fallback(self, data: FrameTensors) -> np.ndarray | None:  # c2w [4, 4]
         """A second start for a frame whose tracking failed; None before any pose.

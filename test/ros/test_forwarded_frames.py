@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import time
+
 import pytest
 from rclpy.parameter import Parameter
 
+from sgs_slam_core.slam.system import Slam
 from sgs_slam_ros.mapping_node import MappingNode
 from sgs_slam_ros.tracking_node import TrackingNode
 
 from ..polling import wait_for
-from .helpers import Feeder, Spinner, new_context, node_params, shut_down, tiny_frames
+from .helpers import FAST, Feeder, Spinner, new_context, node_params, shut_down, tiny_frames
 
 pytestmark = pytest.mark.ros
 
@@ -61,3 +64,43 @@ def test_forward_frames_is_read_only_and_off_by_default(tiny_scene):
         assert not result.successful
     finally:
         shut_down(ctx, [tracker])
+
+
+def test_a_mapper_that_compiles_traces_its_graphs_on_the_first_frame_and_maps_it_too(tiny_scene, monkeypatch):
+    frames = tiny_frames(tiny_scene)[:3]
+    traced = []
+    prepare = Slam.prepare
+
+    def spy(slam, announce, sample=None):
+        prepare(slam, announce, sample)
+        if sample is not None:
+            traced.append(sample.stamp_ns)
+
+    monkeypatch.setattr(Slam, "prepare", spy)
+    ctx = new_context()
+    tracker = TrackingNode(
+        standalone=True,
+        context=ctx,
+        parameter_overrides=node_params(map_source="topic", forward_frames=True),
+    )
+    compiled = [*FAST, "render.backend=torch", "render.compile=true"]
+    mapper = MappingNode(
+        context=ctx,
+        parameter_overrides=node_params(overrides=compiled, pose_source="topic", frame_source="tracking_node"),
+    )
+    feeder = Feeder(ctx)
+    spinner = Spinner(ctx, [tracker, mapper, feeder])
+    try:
+        assert wait_for(lambda: feeder.connected(subscribers=1), 30.0)
+        assert wait_for(lambda: tracker.forwarder._rgb.get_subscription_count() == 1, 30.0)
+        for f in frames:
+            feeder.publish(f)
+            assert wait_for(lambda f=f: f.stamp_ns in feeder.poses, 60.0), f"no pose for frame {f.index}"
+        # the first frame waits while the graphs are traced (seconds, more with a cold cache), then is mapped
+        assert wait_for(lambda: mapper.pipeline.stats.mapped == len(frames), 300.0)
+        # the tracker sent the last frame and its pose again each second while it waited: mapped once
+        time.sleep(1.5)
+    finally:
+        shut_down(ctx, [tracker, mapper, feeder], spinner)
+    assert traced == [frames[0].stamp_ns]
+    assert [stamp for _, stamp, _ in mapper.pipeline.slam.trajectory] == [f.stamp_ns for f in frames]

@@ -165,6 +165,34 @@ def test_an_empty_map_keeps_the_prediction():
     assert np.array_equal(result.w2c, start) and result.loss == float("inf") and result.valid_fraction == 0.0
 
 
+def test_a_start_on_the_device_costs_no_read_of_its_own_and_the_callers_values_come_back_with_the_pose():
+    from bench.bench_dispatch import OpCounter
+
+    gm, frame = target_frame(width=64, height=48)
+    start = se3_exp(torch.tensor([0.01, -0.01, 0.0, 0.0, 0.01, 0.0], dtype=torch.float64)).numpy()
+    tracker = gn_tracker(GaussNewtonSettings(iterations=(4,)))
+    outcome = torch.tensor([1.0, 0.25, 0.003], dtype=torch.float64)
+    results, reads = [], []
+    for init, also in ((start, None), (torch.from_numpy(start), outcome)):
+        counter = OpCounter()
+        with counter.active():
+            results.append(tracker.track(gm, frame, init, False, also_read=also))
+        reads.append(counter.total[1])
+    on_host, on_device = results
+    assert np.array_equal(on_device.w2c, on_host.w2c) and on_device.loss == on_host.loss
+    assert on_host.also_read is None and on_device.also_read.tolist() == [1.0, 0.25, 0.003]
+    assert reads[1] == reads[0]  # the start and the caller's values come back in the pose's read
+    behind = se3_exp(torch.tensor([0.0, 0.0, -10.0, 0.0, 0.0, 0.0], dtype=torch.float64))  # nothing explained
+    kept = tracker.track(gm, frame, behind, False, also_read=outcome)
+    assert np.array_equal(kept.w2c, behind.numpy()) and kept.also_read.tolist() == [1.0, 0.25, 0.003]
+    adam = AdamTracker(TrackingSettings(adam=replace(TrackingSettings().adam, iterations=5)), TORCH)
+    adam_host, adam_device = (
+        adam.track(gm, frame, init, False, also_read=also)
+        for init, also in ((start, None), (torch.from_numpy(start), outcome))
+    )
+    assert np.array_equal(adam_device.w2c, adam_host.w2c) and adam_device.also_read.tolist() == [1.0, 0.25, 0.003]
+
+
 def test_the_method_is_a_config_value_with_checked_settings():
     assert isinstance(build_tracker(TrackingSettings(), TORCH), AdamTracker)
     cfg = load_config("tum", overrides=["tracking.method=gauss_newton", "tracking.gauss_newton.huber_m=0.02"])

@@ -69,6 +69,25 @@ def test_the_icp_keeps_its_reference_until_the_camera_moves_on_or_the_alignment_
     assert np.array_equal(icp.reference_c2w, pose(0.32))
 
 
+def test_a_start_left_on_the_device_is_the_refined_pose_and_its_settled_outcome_keeps_or_replaces_the_reference():
+    icp = IcpInit(MotionSettings().icp, 0.3, policy=ReferencePolicy(0.25, 12.0))
+    assert icp.start(wall(2.0), K, pose()) is None  # no reference yet
+    icp.remember(wall(2.0), K, pose())
+    for depth in (wall(2.0), torch.zeros(K.height, K.width)):  # aligns; nothing to align (the prediction)
+        on_device = icp.start(depth, K, pose(0.1))
+        c2w, outcome = icp.refine(depth, K, pose(0.1))
+        assert np.allclose(on_device.c2w.numpy(), c2w, atol=1e-12)
+        expected = [float(outcome.used), outcome.inlier_fraction, outcome.rms_m]
+        assert on_device.outcome.tolist() == pytest.approx(expected)
+    assert not outcome.used and np.array_equal(c2w, pose(0.1))
+    icp.settle(True)
+    icp.remember(wall(2.0), K, pose(0.05))  # near, and the alignment was used: kept
+    assert np.array_equal(icp.reference_c2w, pose())
+    icp.settle(False)
+    icp.remember(wall(2.0), K, pose(0.06))  # near, but the alignment was not used: replaced
+    assert np.array_equal(icp.reference_c2w, pose(0.06))
+
+
 def test_frame_to_frame_replaces_the_reference_with_every_tracked_frame():
     icp = IcpInit(MotionSettings().icp, 0.3)
     for tx in (0.0, 0.001, 0.002):

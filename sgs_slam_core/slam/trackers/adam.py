@@ -6,13 +6,14 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
+from torch import Tensor
 
 from sgs_slam_core.config.sections import TrackingSettings
 from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.slam.features import Landmarks
-from sgs_slam_core.slam.tracker import TrackResult, track
+from sgs_slam_core.slam.tracker import TrackResult, read_start, track
 
 __all__ = ["AdamTracker"]
 
@@ -31,14 +32,17 @@ class AdamTracker:
         self,
         gaussians: GaussianMap,
         frame: FrameTensors,
-        init_w2c: np.ndarray,  # [4, 4] float64
+        init_w2c: np.ndarray | Tensor,  # [4, 4] float64
         use_semantics: bool,
         newer_frame_waiting: Callable[[], bool] | None = None,
         landmarks: Landmarks | None = None,
+        also_read: Tensor | None = None,  # [K]
     ) -> TrackResult:
         """Adam from ``init_w2c``, keeping the best evaluated pose (one render per step).
 
-        ``landmarks`` are not used: the paper's tracker optimises the rendering loss alone.
+        ``landmarks`` are not used: the paper's tracker optimises the rendering loss alone. A start on
+        the device is read back first, with ``also_read``: every step's stop test reads anyway.
         """
-        result = track(gaussians, frame, init_w2c, self.settings, self.kernels, use_semantics, newer_frame_waiting)
-        return replace(result, renders=result.iterations)
+        init, read = read_start(init_w2c, also_read)
+        result = track(gaussians, frame, init, self.settings, self.kernels, use_semantics, newer_frame_waiting)
+        return replace(result, renders=result.iterations, also_read=read)

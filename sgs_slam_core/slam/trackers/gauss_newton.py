@@ -35,7 +35,7 @@ from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.slam.features import Landmarks
-from sgs_slam_core.slam.tracker import TrackRendering, TrackResult, track
+from sgs_slam_core.slam.tracker import TrackRendering, TrackResult, read_start, track
 
 __all__ = ["GaussNewtonTracker"]
 
@@ -75,16 +75,18 @@ class GaussNewtonTracker:
         self,
         gaussians: GaussianMap,
         frame: FrameTensors,
-        init_w2c: np.ndarray,  # [4, 4] float64
+        init_w2c: np.ndarray | Tensor,  # [4, 4] float64
         use_semantics: bool,
         newer_frame_waiting: Callable[[], bool] | None = None,
         landmarks: Landmarks | None = None,
+        also_read: Tensor | None = None,  # [K]
     ) -> TrackResult:
         """Gauss-Newton from ``init_w2c`` against the map rendered there.
 
         ``newer_frame_waiting`` matters only to the optional Adam steps: the solve itself costs a
         fixed, small number of renders. ``landmarks`` join the finest level's steps as reprojection
-        terms, each weighing ``gauss_newton.feature_weight`` pixels (0: not used).
+        terms, each weighing ``gauss_newton.feature_weight`` pixels (0: not used). The pose, the
+        start and ``also_read`` come back to the host in one read at the end.
         """
         t0 = time.perf_counter()
         fixed = gaussians.detach()
@@ -94,7 +96,7 @@ class GaussNewtonTracker:
         if steps == 0 and ADAM_STEPS == 0:  # no solve: the start, judged at its own rendering
             with stage("track.render"), torch.no_grad():
                 start = self.kernels.render(fixed, frame.intrinsics, init.float(), with_semantics=use_semantics)
-            return self._judge(gaussians, frame, (init, start), use_semantics, init_w2c, 0, t0, at_start=True)
+            return self._judge(gaussians, frame, (init, start), use_semantics, (init, also_read), 0, t0, at_start=True)
         landmarks = landmarks if landmarks is not None and len(landmarks) and self.gn.feature_weight > 0 else None
         w2c, start = self._solve(fixed, frame, init, semantic, use_semantics and self.gn.keep_start, landmarks)
         if ADAM_STEPS > 0:
@@ -107,16 +109,16 @@ class GaussNewtonTracker:
                 lr_translation=a.lr_translation * scale,
             )
             adam = replace(self.settings, adam=polish)
-            polished = track(
-                gaussians, frame, w2c.cpu().numpy(), adam, self.kernels, use_semantics, newer_frame_waiting
-            )
+            solved, read = read_start(w2c, also_read)
+            polished = track(gaussians, frame, solved, adam, self.kernels, use_semantics, newer_frame_waiting)
             return replace(
                 polished,
                 iterations=steps + polished.iterations,
                 time_s=time.perf_counter() - t0,
                 renders=RENDERS + polished.iterations,
+                also_read=read,
             )
-        return self._judge(gaussians, frame, (w2c, start), use_semantics, init_w2c, steps, t0)
+        return self._judge(gaussians, frame, (w2c, start), use_semantics, (init, also_read), steps, t0)
 
     def _solve(
         self,
@@ -226,12 +228,12 @@ class GaussNewtonTracker:
         frame: FrameTensors,
         solved: tuple[Tensor, RenderOutput],  # the solved w2c [4, 4] float64, the rendering at the start
         use_semantics: bool,
-        init_w2c: np.ndarray,
+        started: tuple[Tensor, Tensor | None],  # the start w2c [4, 4] float64, the caller's values to read [K]
         steps: int,
         t0: float,
         at_start: bool = False,
     ) -> TrackResult:
-        """The tracking loss at the solved pose and at the start, read back with the pose in one host read.
+        """The tracking loss at the solved pose and at the start, read back with both poses in one host read.
 
         With ``keep_start`` the solve is kept unless the start's loss is lower (the Adam tracker, too,
         keeps its best evaluated pose, the start included); without, the start's loss is not
@@ -249,15 +251,18 @@ class GaussNewtonTracker:
         with stage("track.loss"):
             judged = (out, start) if keep_start else (out,)
             stats = torch.cat([self._loss_stats(rendered, frame, use_semantics) for rendered in judged])
-        values = torch.cat([stats, w2c.reshape(-1)]).cpu().numpy()
-        pose = values[len(stats) :].reshape(4, 4)
+        init, also_read = started
+        extra = [] if also_read is None else [also_read.reshape(-1).double()]
+        values = torch.cat([stats, w2c.reshape(-1), init.reshape(-1), *extra]).cpu().numpy()
+        n = len(stats)
+        pose, init_w2c = values[n : n + 16].reshape(4, 4), values[n + 16 : n + 32].reshape(4, 4)
+        read = None if also_read is None else values[n + 32 :]
         if keep_start and values[4] > 0 and (values[1] == 0 or values[3] < values[0]):  # the start is better
             values, pose, out = values[3:], init_w2c.copy(), start
         value, pixels, residual = (float(v) for v in values[:3])
         if pixels == 0:  # nothing explained at either pose: keep the prediction, as the Adam tracker does
-            return TrackResult(
-                init_w2c.copy(), steps, False, float("inf"), 0.0, float("inf"), 0.0, time.perf_counter() - t0, renders
-            )
+            inf, elapsed = float("inf"), time.perf_counter() - t0
+            return TrackResult(init_w2c, steps, False, inf, 0.0, inf, 0.0, elapsed, renders, None, read)
         return TrackResult(
             pose,
             steps,
@@ -269,6 +274,7 @@ class GaussNewtonTracker:
             time.perf_counter() - t0,
             renders,
             TrackRendering(gaussians, out),
+            read,
         )
 
     def _loss_stats(self, out: RenderOutput, frame: FrameTensors, use_semantics: bool) -> Tensor:
