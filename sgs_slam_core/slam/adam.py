@@ -46,30 +46,22 @@ class FusedAdam:
     def step(self) -> None:
         """One update of every tensor that has a gradient, then the gradients are cleared."""
         with torch.no_grad():
-            names = [name for name, p in self.params.items() if p.grad is not None]
-            for name in names:
-                if name not in self.state:
-                    p = self.params[name]
-                    self.state[name] = AdamMoments(
-                        torch.zeros_like(p), torch.zeros_like(p), torch.zeros((), device=p.device)
-                    )
-            if self.update is not None:
-                self._update(self.update, names)
-            else:
-                for name in names:
-                    self._fused(name)
-            for name in names:
-                self.params[name].grad = None
+            for name, p in self.params.items():
+                if p.grad is None:
+                    continue
+                s = self.state.get(name)
+                if s is None:
+                    s = AdamMoments(torch.zeros_like(p), torch.zeros_like(p), torch.zeros((), device=p.device))
+                    self.state[name] = s
+                # a call per tensor: which tensors have a gradient changes from step to step (a frame
+                # without labels leaves the semantics out); one compiled graph per tensor serves all
+                if self.update is not None:
+                    self.update(p, p.grad, s.exp_avg, s.exp_avg_sq, s.step, self.lrs[name], self.eps)
+                else:
+                    self._fused(name, p, s)
+                p.grad = None
 
-    def _update(self, update: AdamUpdate, names: list[str]) -> None:
-        # a call per tensor: which tensors have a gradient changes from step to step (a frame without
-        # labels leaves the semantics out), and one compiled graph per tensor serves every combination
-        for name in names:
-            p, s = self.params[name], self.state[name]
-            update(p, p.grad, s.exp_avg, s.exp_avg_sq, s.step, self.lrs[name], self.eps)
-
-    def _fused(self, name: str) -> None:
-        p, s = self.params[name], self.state[name]
+    def _fused(self, name: str, p: Tensor, s: AdamMoments) -> None:
         s.step += 1
         torch._fused_adam_(  # the kernel behind torch.optim.Adam(fused=True)
             [p],

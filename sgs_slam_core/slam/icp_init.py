@@ -14,6 +14,7 @@ from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.geometry.icp import IcpKernels, IcpLevel, IcpSettings, align_device, icp_pyramid
 from sgs_slam_core.geometry.views import views_near
 from sgs_slam_core.profiling import stage
+from sgs_slam_core.slam.pose import read_pose
 
 __all__ = ["DeviceStart", "IcpInit", "IcpOutcome", "ReferencePolicy"]
 
@@ -150,10 +151,9 @@ class IcpInit:
         self, ref: _Reference, depth: Tensor, intrinsics: Intrinsics, predicted_c2w: np.ndarray
     ) -> tuple[np.ndarray, IcpOutcome]:
         """The start and what the ICP did, in one host read."""
-        c2w, outcome = self._align_device(ref, depth, intrinsics, predicted_c2w)
-        host = torch.cat([c2w.reshape(-1), outcome]).cpu().numpy()
-        used, fraction, rms = (float(v) for v in host[16:])
-        return host[:16].reshape(4, 4), IcpOutcome(used > 0, fraction, rms)
+        c2w, outcome = read_pose(*self._align_device(ref, depth, intrinsics, predicted_c2w))
+        used, fraction, rms = (float(v) for v in outcome)
+        return c2w, IcpOutcome(used > 0, fraction, rms)
 
     def _align_device(
         self, ref: _Reference, depth: Tensor, intrinsics: Intrinsics, predicted_c2w: np.ndarray

@@ -18,7 +18,7 @@ from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.geometry.icp import IcpKernels
 from sgs_slam_core.slam.feature_odometry import FeatureOdometry, FeatureView
 from sgs_slam_core.slam.icp_init import IcpInit, ReferencePolicy
-from sgs_slam_core.slam.pose import predict_constant_velocity
+from sgs_slam_core.slam.pose import predict_constant_velocity, read_pose
 
 __all__ = ["MotionModel", "Start"]
 
@@ -80,11 +80,9 @@ class MotionModel:
     def predict(self, stamp_ns: int, data: FrameTensors, view: FeatureView | None = None) -> np.ndarray:  # c2w [4, 4]
         """The starting pose of a frame taken at ``stamp_ns``: :meth:`start`'s, read back and settled."""
         start = self.start(stamp_ns, data, view)
-        if start.icp_outcome is None:
-            return start.c2w
-        host = torch.cat([start.c2w.reshape(-1), start.icp_outcome]).cpu().numpy()
-        self.settle(host[16:])
-        return host[:16].reshape(4, 4)
+        c2w, outcome = read_pose(start.c2w, start.icp_outcome)
+        self.settle(outcome)
+        return c2w
 
     def start(self, stamp_ns: int, data: FrameTensors, view: FeatureView | None = None) -> Start:
         """The starting pose of a frame taken at ``stamp_ns``; ``data`` is its depth for the ICP.

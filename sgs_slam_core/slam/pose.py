@@ -8,7 +8,20 @@ from torch import Tensor
 
 from sgs_slam_core.geometry.se3 import se3_exp, so3_exp, so3_log
 
-__all__ = ["PoseParameters", "predict_constant_velocity"]
+__all__ = ["PoseParameters", "predict_constant_velocity", "read_pose"]
+
+
+def read_pose(pose: np.ndarray | Tensor, extra: Tensor | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """A pose [4, 4] left on the device and ``extra`` [K] values read back with it in one host read (float64).
+
+    A pose already on the host is returned as it is, with nothing read unless ``extra`` is given.
+    """
+    if extra is None and isinstance(pose, np.ndarray):
+        return pose, None
+    device = pose.device if isinstance(pose, Tensor) else extra.device
+    parts = [torch.as_tensor(pose, dtype=torch.float64, device=device).reshape(-1)]
+    host = torch.cat(parts + ([] if extra is None else [extra.reshape(-1).double()])).cpu().numpy()
+    return host[:16].reshape(4, 4), None if extra is None else host[16:]
 
 
 class PoseParameters:

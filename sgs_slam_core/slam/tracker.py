@@ -59,20 +59,6 @@ class TrackResult:
     also_read: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
-def read_start(init_w2c: np.ndarray | Tensor, also_read: Tensor | None) -> tuple[np.ndarray, np.ndarray | None]:
-    """A start left on the device ([4, 4] float64) and the values to read with it, in one host read.
-
-    A start already on the host is returned as it is, with nothing to read unless ``also_read`` is given.
-    """
-    if also_read is None and isinstance(init_w2c, np.ndarray):
-        return init_w2c, None
-    device = init_w2c.device if isinstance(init_w2c, Tensor) else also_read.device
-    start = torch.as_tensor(init_w2c, dtype=torch.float64, device=device)
-    parts = [start.reshape(-1)] + ([] if also_read is None else [also_read.reshape(-1).double()])
-    host = torch.cat(parts).cpu().numpy()
-    return host[:16].reshape(4, 4), None if also_read is None else host[16:]
-
-
 def track(
     gaussians: GaussianMap,
     frame: FrameTensors,

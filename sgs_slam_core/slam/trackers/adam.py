@@ -13,7 +13,8 @@ from sgs_slam_core.frame_data import FrameTensors
 from sgs_slam_core.gaussians import GaussianMap
 from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.slam.features import Landmarks
-from sgs_slam_core.slam.tracker import TrackResult, read_start, track
+from sgs_slam_core.slam.pose import read_pose
+from sgs_slam_core.slam.tracker import TrackResult, track
 
 __all__ = ["AdamTracker"]
 
@@ -43,6 +44,6 @@ class AdamTracker:
         ``landmarks`` are not used: the paper's tracker optimises the rendering loss alone. A start on
         the device is read back first, with ``also_read``: every step's stop test reads anyway.
         """
-        init, read = read_start(init_w2c, also_read)
+        init, read = read_pose(init_w2c, also_read)
         result = track(gaussians, frame, init, self.settings, self.kernels, use_semantics, newer_frame_waiting)
         return replace(result, renders=result.iterations, also_read=read)

@@ -35,7 +35,8 @@ from sgs_slam_core.kernels.base import Kernels
 from sgs_slam_core.profiling import stage
 from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.slam.features import Landmarks
-from sgs_slam_core.slam.tracker import TrackRendering, TrackResult, read_start, track
+from sgs_slam_core.slam.pose import read_pose
+from sgs_slam_core.slam.tracker import TrackRendering, TrackResult, track
 
 __all__ = ["GaussNewtonTracker"]
 
@@ -109,7 +110,7 @@ class GaussNewtonTracker:
                 lr_translation=a.lr_translation * scale,
             )
             adam = replace(self.settings, adam=polish)
-            solved, read = read_start(w2c, also_read)
+            solved, read = read_pose(w2c, also_read)
             polished = track(gaussians, frame, solved, adam, self.kernels, use_semantics, newer_frame_waiting)
             return replace(
                 polished,
