@@ -78,8 +78,9 @@ class GaussNewtonSettings:
         feature_weight: the frame's feature matches (the inliers of its feature pose against the
             last accepted frame) join the finest level's steps as reprojection terms, a pixel of
             error counting as the metres it spans at the point's depth and each match as this many
-            pixels of the dense terms; they hold the pose where the geometry leaves a direction
-            free (a camera over a desk slides along it). 0 = not used.
+            pixels of a 160x120 frame's dense terms (scaled by the frame's pixel count, so the
+            matches keep their share at any size); they hold the pose where the geometry leaves a
+            direction free (a camera over a desk slides along it). 0 = not used.
         depth_noise: the depth camera's axial noise, ``base_m + quadratic_per_m (z - offset_m)^2``
             (m; a Kinect v1's by default): each point-to-plane residual is weighed by the noise at
             the frame's median depth over the noise at the point's depth, so ``huber_m`` is metres

@@ -193,6 +193,21 @@ def test_a_start_on_the_device_costs_no_read_of_its_own_and_the_callers_values_c
     assert np.array_equal(adam_device.w2c, adam_host.w2c) and adam_device.also_read.tolist() == [1.0, 0.25, 0.003]
 
 
+def test_a_feature_match_keeps_its_share_of_the_dense_terms_at_any_frame_size():
+    """The dense terms sum over pixels, so a match weighs in proportion to the frame's pixel count."""
+    from sgs_slam_core.slam.features import Landmarks
+
+    tracker = gn_tracker(GaussNewtonSettings(feature_weight=10.0))
+    marks = Landmarks(np.array([[0.1, 0.0, 2.0]]), np.array([[40.0, 30.0]]), 2.0)
+    eye = torch.eye(4, dtype=torch.float64)
+    weights = {
+        (w, h): tracker._observations(marks, eye, Intrinsics(0.9 * w, 0.9 * w, w / 2, h / 2, w, h)).weight
+        for w, h in ((160, 120), (320, 240), (640, 480), (80, 60))
+    }
+    assert weights == {(160, 120): 10.0, (320, 240): 40.0, (640, 480): 160.0, (80, 60): 2.5}
+    assert tracker._observations(None, eye, Intrinsics(144.0, 144.0, 80.0, 60.0, 160, 120)) is None
+
+
 def test_the_method_is_a_config_value_with_checked_settings():
     assert isinstance(build_tracker(TrackingSettings(), TORCH), AdamTracker)
     cfg = load_config("tum", overrides=["tracking.method=gauss_newton", "tracking.gauss_newton.huber_m=0.02"])

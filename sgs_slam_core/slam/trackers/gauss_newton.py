@@ -56,6 +56,8 @@ ADAM_STEPS = 0
 # Those steps' learning rates as a fraction of ``tracking.adam.lr_*``: the solve starts them near the
 # optimum, where the full rates overshoot.
 ADAM_LR_SCALE = 0.25
+# The frame size (pixels) at which a feature match weighs ``gauss_newton.feature_weight`` dense pixels.
+FEATURE_WEIGHT_PIXELS = 160 * 120
 
 
 class GaussNewtonTracker:
@@ -148,7 +150,7 @@ class GaussNewtonTracker:
                 rendered.append(self.kernels.render(gaussians, k, w2c.float(), with_semantics=with_semantics))
             with stage("track.solve"):
                 reference = self._reference(rendered[-1], k, levels, semantic)
-                aligned = self._align(depth, k, reference, eye, sources, self._observations(landmarks, w2c))
+                aligned = self._align(depth, k, reference, eye, sources, self._observations(landmarks, w2c, k))
                 w2c = se3_inverse(aligned) @ w2c  # the frame's camera -> the rendered camera
         return w2c, rendered[0]  # RENDERS >= 1
 
@@ -170,14 +172,21 @@ class GaussNewtonTracker:
             return refine_device(depth, k, reference, start, self.icp, sources, self.kernels.icp, observations)
         return align_device(depth, k, reference, start, self.icp, sources, self.kernels.icp).src_to_ref
 
-    def _observations(self, landmarks: Landmarks | None, w2c: Tensor) -> Observations | None:  # w2c [4, 4]
-        """The landmarks in the camera frame of the rendering at ``w2c``, as the alignment's observations."""
+    def _observations(
+        self, landmarks: Landmarks | None, w2c: Tensor, k: Intrinsics
+    ) -> Observations | None:  # w2c [4, 4]
+        """The landmarks in the camera frame of the rendering at ``w2c``, as the alignment's observations.
+
+        The dense terms are a sum over the frame's pixels, so a match weighs ``feature_weight`` pixels
+        of a 160x120 frame times the frame's pixel count over that one's: the same share at any size.
+        """
         if landmarks is None:
             return None
+        weight = self.gn.feature_weight * k.width * k.height / FEATURE_WEIGHT_PIXELS
         points = torch.as_tensor(landmarks.points, dtype=torch.float64, device=w2c.device)
         pixels = torch.as_tensor(landmarks.pixels, dtype=torch.float64, device=w2c.device)
         camera = points @ w2c[:3, :3].T + w2c[:3, 3]
-        return Observations(camera, pixels, self.gn.feature_weight, landmarks.huber_px)
+        return Observations(camera, pixels, weight, landmarks.huber_px)
 
     def _reference(self, out: RenderOutput, k: Intrinsics, levels: int, semantic: bool) -> list[IcpLevel]:
         """The rendering as the alignment's reference, where the silhouette is confident.
