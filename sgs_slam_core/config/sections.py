@@ -242,10 +242,6 @@ class FeatureSettings:
             blurred frames.
         min_inliers: a feature pose needs at least this many matches within ``reprojection_px``.
         reprojection_px: RANSAC's inlier threshold (px).
-        keyframes: the tracker also holds each frame to its inlier matches against this many
-            keyframes, those whose features match it best (0 = the last frame's matches only):
-            constraints against older views, which the frame-to-frame matches lack, so the drift
-            over a long sweep is smaller; each costs a match and a RANSAC PnP a frame.
     """
 
     enabled: bool = True
@@ -253,7 +249,6 @@ class FeatureSettings:
     fast_threshold: int = 10
     min_inliers: int = 20
     reprojection_px: float = 2.0
-    keyframes: int = 0
 
     def __post_init__(self) -> None:
         _positive(
@@ -264,8 +259,6 @@ class FeatureSettings:
         )
         if self.min_inliers < 6:
             raise ConfigError(f"features.min_inliers must be >= 6 (a PnP needs them), got {self.min_inliers}")
-        if self.keyframes < 0:
-            raise ConfigError(f"features.keyframes must be >= 0, got {self.keyframes}")
 
 
 @dataclass(frozen=True)

@@ -62,10 +62,9 @@ class Localizer:
     ) -> None:
         self.config, self.motion, self.tracker, self.guard, self.kernels = config, motion, tracker, guard, kernels
         c = config
-        self.relocalizes = c.features.enabled and c.guard.lost_after > 0
-        holds_keyframes = self.relocalizes or (c.features.enabled and c.features.keyframes > 0)
+        relocalizes = c.features.enabled and c.guard.lost_after > 0
         self.relocalizer = (
-            Relocalizer(c.features, RELOCALIZE_CANDIDATES, c.guard.relocalize_min_inliers) if holds_keyframes else None
+            Relocalizer(c.features, RELOCALIZE_CANDIDATES, c.guard.relocalize_min_inliers) if relocalizes else None
         )
 
     def locate(
@@ -81,8 +80,7 @@ class Localizer:
         use_sem = frame.labels is not None and self.config.tracking.weight_semantic > 0
         if self.guard.lost:
             return self._relocalized(gaussians, keyframes, data, view, use_sem)
-        landmarks = self._with_keyframes(self._landmarks(view), keyframes, view)
-        return self._tracked(gaussians, frame, data, view, landmarks, use_sem, newer_frame_waiting)
+        return self._tracked(gaussians, frame, data, view, use_sem, newer_frame_waiting)
 
     # ------------------------------------------------------------------ tracking
     def _tracked(
@@ -91,13 +89,10 @@ class Localizer:
         frame: Frame,
         data: FrameTensors,
         view: FeatureView | None,
-        landmarks: Landmarks | None,
         use_sem: bool,
         newer_frame_waiting: Callable[[], bool] | None,
     ) -> Localization:
-        """The frame tracked from the motion model's start, held to ``landmarks``, judged by the guard.
-
-        A frame the guard rejects is retried once.
+        """The frame tracked from the motion model's start, judged by the guard (retried once when it fails).
 
         A frame that still fails takes the pose its features give against the last accepted frame,
         where they give one with ``guard.relocalize_min_inliers``: judged as a tracked pose would
@@ -107,6 +102,7 @@ class Localizer:
         """
         start = self.motion.start(frame.stamp_ns, data, view)
         w2c = np.linalg.inv(start.c2w) if isinstance(start.c2w, np.ndarray) else se3_inverse(start.c2w)
+        landmarks = self._landmarks(view)
         result = self.tracker.track(gaussians, data, w2c, use_sem, newer_frame_waiting, landmarks, start.icp_outcome)
         self.motion.settle(result.also_read)
         failure = self.guard.check(*self._evidence(result, view))
@@ -168,27 +164,6 @@ class Localizer:
     def _landmarks(self, view: FeatureView | None) -> Landmarks | None:
         """The inlier matches of the frame's feature pose, as landmarks for the tracker (None without one)."""
         return None if view is None else view.landmarks(self.config.features.reprojection_px)
-
-    def _with_keyframes(
-        self, landmarks: Landmarks | None, keyframes: KeyframeStore, view: FeatureView | None
-    ) -> Landmarks | None:
-        """``landmarks`` and the inlier matches against the ``features.keyframes`` keyframes that match best.
-
-        Only beside the last frame's: a frame with no feature pose of its own is not held to older views either.
-        """
-        count = self.config.features.keyframes
-        if count == 0 or landmarks is None or view is None or self.relocalizer is None:
-            return landmarks
-        found = [landmarks]
-        for solved in self.relocalizer.solved(keyframes, view, count):
-            matched = solved.landmarks(self.config.features.reprojection_px)
-            if matched is not None and len(matched):
-                found.append(matched)
-        if len(found) == 1:
-            return landmarks
-        points = np.concatenate([f.points for f in found])
-        pixels = np.concatenate([f.pixels for f in found])
-        return Landmarks(points, pixels, landmarks.huber_px)
 
     def _evidence(
         self, result: TrackResult, view: FeatureView | None

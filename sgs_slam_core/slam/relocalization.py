@@ -1,10 +1,9 @@
-"""The keyframes' features: candidate poses for a lost frame, and matches that hold a tracked one.
+"""Relocalization: candidate poses for a lost frame from the keyframes' features.
 
 Each held keyframe's ORB features are computed once from its stored images (so a loaded map's
 keyframes serve too). A lost frame's descriptors vote for the keyframe holding their nearest
 neighbour; the best-voted keyframes are matched properly and solved by RANSAC PnP on their depth,
-giving poses in the map frame that the tracker then refines and the guard judges. A tracked frame's
-matches against its best-voted keyframes become landmarks for the tracker (``features.keyframes``).
+giving poses in the map frame that the tracker then refines and the guard judges.
 """
 
 from __future__ import annotations
@@ -39,15 +38,13 @@ class Relocalizer:
     def candidates(self, keyframes: Sequence[CompactFrame], query: FeatureView) -> list[FeatureView]:
         """``query`` solved against the keyframes it matches best: those with a pose, most inliers first."""
         with stage("relocalize"):
-            return sorted(self.solved(keyframes, query, self.count), key=lambda v: -v.inliers)
-
-    def solved(self, keyframes: Sequence[CompactFrame], query: FeatureView, count: int) -> list[FeatureView]:
-        """``query`` solved against the ``count`` keyframes its descriptors vote for most, best voted first.
-
-        Only those with a pose of at least ``min_inliers`` matches.
-        """
-        views = (query.against(kf, self.settings) for kf in self._ranked(self._sync(keyframes), query)[:count])
-        return [view for view in views if view.inliers >= self.min_inliers]
+            held = self._sync(keyframes)
+            found = []
+            for kf in self._ranked(held, query)[: self.count]:
+                view = query.against(kf, self.settings)
+                if view.inliers >= self.min_inliers:
+                    found.append(view)
+            return sorted(found, key=lambda v: -v.inliers)
 
     def _sync(self, keyframes: Sequence[CompactFrame]) -> list[FeatureReference]:
         """The held keyframes' features: computed for new ones, dropped for those the store let go."""

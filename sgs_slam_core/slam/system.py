@@ -439,7 +439,7 @@ class Slam:
         if saved.scene_radius is not None:
             self.scene_radius = saved.scene_radius
         self.intrinsics = saved.intrinsics
-        if relocalize and self.localizer.relocalizes and saved.keyframe_images:
+        if relocalize and self.localizer.relocalizer is not None and saved.keyframe_images:
             self.guard.start_lost()
             self._lost_since = self.frames_processed
 

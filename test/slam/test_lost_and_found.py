@@ -211,35 +211,3 @@ def test_a_map_resumed_after_a_restart_is_relocalized_in_before_it_is_mapped_aga
     again = Slam(config)
     again.load_map(saved)  # without relocalize: tracked from the saved last pose at once
     assert not again.guard.lost and again.process(room_frame(20)).track.state == "ok"
-
-
-def test_a_tracked_frame_is_held_to_its_best_keyframes_matches_too():
-    """``features.keyframes``: the tracker gets the matches against older keyframes beside the last frame's."""
-    seen: dict[int, list[int]] = {}
-    checked: list[int] = []
-
-    def run(keyframes: int) -> None:
-        overrides = ["mapping.iterations=5", "keyframes.every=3", f"features.keyframes={keyframes}"]
-        slam = Slam(load_config("synthetic", overrides=overrides))
-        track = slam.tracker.track
-        seen[keyframes] = []
-
-        def spied(gaussians, frame, init_w2c, use_semantics, waiting=None, landmarks=None, *args):
-            seen[keyframes].append(0 if landmarks is None else len(landmarks))
-            if keyframes and landmarks is not None and slam.frames_processed == 11:
-                truth = np.linalg.inv(np.linalg.inv(poses()[0]) @ poses()[11])  # w2c in the map frame
-                cam = landmarks.points @ truth[:3, :3].T + truth[:3, 3]
-                k = frame.intrinsics
-                uv = np.stack([k.fx * cam[:, 0] / cam[:, 2] + k.cx, k.fy * cam[:, 1] / cam[:, 2] + k.cy], axis=1)
-                assert np.median(np.linalg.norm(uv - landmarks.pixels, axis=1)) < 1.0
-                checked.append(len(landmarks))
-            return track(gaussians, frame, init_w2c, use_semantics, waiting, landmarks, *args)
-
-        slam.tracker.track = spied
-        for i in range(12):
-            slam.process(room_frame(i))
-
-    run(0)
-    run(2)
-    assert len(seen[0]) == len(seen[2]) == 11 and checked  # every frame after the first tracked once
-    assert sum(seen[2]) > 1.5 * sum(seen[0])  # the keyframes' matches join the last frame's
