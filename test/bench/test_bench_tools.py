@@ -137,3 +137,29 @@ def test_a_live_ab_row_and_medians_read_a_runs_metrics():
     assert len(first) == len(HEADERS) and first[3] == "90 of 100 (90%)" and first[4] == "3.00" and first[-1] == 2
     assert row(3, "base", "abc1234", runs[2])[4] == "-"
     assert medians(runs) == "90% tracked at 4.00 cm"  # ATE median over the runs that have one
+
+
+def test_the_view_density_counts_a_layer_behind_an_opaque_wall_as_hidden():
+    from bench.bench_view_density import born_by, density
+    from sgs_slam_core.gaussians import GaussianMap
+    from sgs_slam_core.geometry.camera import Intrinsics
+
+    k = Intrinsics(40.0, 40.0, 19.5, 14.5, 40, 30)
+    u, v = torch.meshgrid(torch.arange(40.0), torch.arange(30.0), indexing="xy")
+    rays = torch.stack([(u.reshape(-1) - k.cx) / k.fx, (v.reshape(-1) - k.cy) / k.fy, torch.ones(1200)], dim=1)
+    means = torch.cat([rays * 1.0, rays * 1.5])  # a wall of one Gaussian a pixel at 1 m, and a copy at 1.5 m
+    n = len(means)
+    g = GaussianMap(
+        means=means,
+        log_scales=torch.full((n, 1), float(np.log(0.02))),  # 2 cm: a pixel's footprint at 1 m is 2.5 cm
+        logit_opacities=torch.full((n,), 6.0),  # opaque
+        colors=torch.full((n, 3), 0.5),
+        semantics=torch.zeros(n, 0),
+        labels=torch.zeros(n, dtype=torch.long),
+        birth_frame=torch.cat([torch.zeros(1200, dtype=torch.long), torch.full((1200,), 5)]),
+    )
+    assert len(born_by(g, 4).means) == 1200 and len(born_by(g, 5).means) == n
+    at_frame_4 = density(g, k, np.eye(4), 4)
+    assert at_frame_4.then == 1200 and at_frame_4.now == n
+    assert at_frame_4.hidden == pytest.approx(0.5, abs=0.02)  # the copy behind, every one of it
+    assert at_frame_4.then_ms > 0 and at_frame_4.now_ms > 0
