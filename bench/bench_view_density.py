@@ -21,7 +21,7 @@ import argparse
 import csv
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +35,7 @@ from sgs_slam_core.geometry.camera import Intrinsics
 from sgs_slam_core.kernels.factory import build_kernels
 from sgs_slam_core.mapio.files import read_any_map
 from sgs_slam_core.metrics.trajectory_io import read_tum_trajectory
+from sgs_slam_core.render.output import RenderOutput
 from sgs_slam_core.render.projection import frustum_candidates
 from sgs_slam_core.render.settings import RenderSettings
 
@@ -48,35 +49,33 @@ RENDER_REPEATS = 5  # the fastest of this many renders is the render time
 class ViewDensity:
     """One pose: Gaussians in view of the map then and now, hidden share now, render times (ms)."""
 
-    then: int
+    then: float  # a count, or a mean of counts
     then_ms: float
-    now: int
+    now: float
     now_ms: float
     hidden: float  # share of ``now`` centred behind the opaque rendered surface
 
 
 def born_by(g: GaussianMap, frame: int) -> GaussianMap:
     """The Gaussians of ``g`` added at or before ``frame``."""
-    keep = g.birth_frame <= frame
-    weight = None if g.label_weight is None else g.label_weight[keep]
-    quats = None if g.quats is None else g.quats[keep]
-    tensors = ("means", "log_scales", "logit_opacities", "colors", "semantics", "labels", "birth_frame")
-    return replace(g, **{name: getattr(g, name)[keep] for name in tensors}, quats=quats, label_weight=weight)
+    return g.select(g.birth_frame <= frame)
 
 
-def render_ms(g: GaussianMap, k: Intrinsics, w2c: torch.Tensor) -> float:  # w2c [4, 4]
+def rendered(g: GaussianMap, k: Intrinsics, w2c: torch.Tensor) -> tuple[float, RenderOutput]:  # w2c [4, 4]
+    """The fastest of ``RENDER_REPEATS`` renders (ms), and the rendering."""
     kernels = build_kernels(RenderSettings(), g.device)
     times = []
     for _ in range(RENDER_REPEATS):
         t0 = time.perf_counter()
-        kernels.render(g, k, w2c, with_semantics=False)
+        out = kernels.render(g, k, w2c, with_semantics=False)
         times.append(time.perf_counter() - t0)
-    return 1e3 * min(times)
+    return 1e3 * min(times), out
 
 
-def hidden_share(g: GaussianMap, k: Intrinsics, w2c: torch.Tensor, ids: torch.Tensor) -> float:  # ids [M]
-    """The share of ``ids`` whose centre is behind the opaque rendered surface by ``HIDDEN_SIGMAS``."""
-    out = build_kernels(RenderSettings(), g.device).render(g, k, w2c, with_semantics=False)
+def hidden_share(
+    g: GaussianMap, k: Intrinsics, w2c: torch.Tensor, ids: torch.Tensor, out: RenderOutput
+) -> float:  # ids [M]
+    """The share of ``ids`` whose centre is behind the opaque surface of ``out`` by ``HIDDEN_SIGMAS``."""
     surface = out.depth / out.silhouette.clamp_min(1e-6)  # [H, W] m
     cam = g.means[ids] @ w2c[:3, :3].T + w2c[:3, 3]  # [M, 3]
     u = torch.round(k.fx * cam[:, 0] / cam[:, 2] + k.cx).long()
@@ -93,9 +92,14 @@ def density(g: GaussianMap, k: Intrinsics, c2w: np.ndarray, frame: int) -> ViewD
     then = born_by(g, frame)
     then_ids = frustum_candidates(then.means, then.log_scales, w2c, k, RenderSettings())
     now_ids = frustum_candidates(g.means, g.log_scales, w2c, k, RenderSettings())
-    return ViewDensity(
-        len(then_ids), render_ms(then, k, w2c), len(now_ids), render_ms(g, k, w2c), hidden_share(g, k, w2c, now_ids)
-    )
+    then_ms, _ = rendered(then, k, w2c)
+    now_ms, out = rendered(g, k, w2c)
+    return ViewDensity(len(then_ids), then_ms, len(now_ids), now_ms, hidden_share(g, k, w2c, now_ids, out))
+
+
+def mean_of(views: list[ViewDensity]) -> ViewDensity:
+    """The field-by-field mean of ``views``."""
+    return ViewDensity(*(float(np.mean([getattr(v, f.name) for v in views])) for f in fields(ViewDensity)))
 
 
 def tracked_frames(run: Path) -> tuple[list[int], np.ndarray]:  # [N] frame indices, [N, 4, 4] c2w
@@ -118,10 +122,9 @@ def main() -> int:
     for tenth in range(TENTHS):
         lo, hi = tenth * len(frames) // TENTHS, (tenth + 1) * len(frames) // TENTHS
         picks = np.linspace(lo, hi - 1, args.samples).round().astype(int)
-        d = [density(saved.gaussians, saved.intrinsics, c2w[i], frames[i]) for i in picks]
-        mean = {f: float(np.mean([getattr(x, f) for x in d])) for f in ("then", "then_ms", "now", "now_ms", "hidden")}
-        rows.append([f"{10 * tenth}-{10 * (tenth + 1)} %", f"{mean['then']:,.0f}", f"{mean['then_ms']:.2f}",
-                     f"{mean['now']:,.0f}", f"{mean['now_ms']:.2f}", f"{100 * mean['hidden']:.0f} %"])  # fmt: skip
+        m = mean_of([density(saved.gaussians, saved.intrinsics, c2w[i], frames[i]) for i in picks])
+        rows.append([f"{10 * tenth}-{10 * (tenth + 1)} %", f"{m.then:,.0f}", f"{m.then_ms:.2f}", f"{m.now:,.0f}",
+                     f"{m.now_ms:.2f}", f"{100 * m.hidden:.0f} %"])  # fmt: skip
     headers = ["tenth", "in view then", "render ms then", "in view, final map", "render ms", "hidden (final map)"]
     print(markdown_table(headers, rows))
     return 0
