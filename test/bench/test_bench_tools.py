@@ -143,6 +143,8 @@ def test_the_view_density_counts_a_layer_behind_an_opaque_wall_as_hidden():
     from bench.bench_view_density import born_by, density
     from sgs_slam_core.gaussians import GaussianMap
     from sgs_slam_core.geometry.camera import Intrinsics
+    from sgs_slam_core.kernels.factory import build_kernels
+    from sgs_slam_core.render.settings import RenderSettings
 
     k = Intrinsics(40.0, 40.0, 19.5, 14.5, 40, 30)
     u, v = torch.meshgrid(torch.arange(40.0), torch.arange(30.0), indexing="xy")
@@ -159,7 +161,7 @@ def test_the_view_density_counts_a_layer_behind_an_opaque_wall_as_hidden():
         birth_frame=torch.cat([torch.zeros(1200, dtype=torch.long), torch.full((1200,), 5)]),
     )
     assert len(born_by(g, 4).means) == 1200 and len(born_by(g, 5).means) == n
-    at_frame_4 = density(g, k, np.eye(4), 4)
+    at_frame_4 = density(build_kernels(RenderSettings(), g.device), g, k, np.eye(4), 4)
     assert at_frame_4.then == 1200 and at_frame_4.now == n
     assert at_frame_4.hidden == pytest.approx(0.5, abs=0.02)  # the copy behind, every one of it
     assert at_frame_4.then_ms > 0 and at_frame_4.now_ms > 0
